@@ -1,0 +1,78 @@
+"""The `takeoff` command line. Subcommands arrive with the parts they drive."""
+
+import argparse
+import os
+import sys
+import tempfile
+
+
+def _load_character(spec: str):
+    """A built-in character name (`humanoid`, `quadruped`, `snake:N`) or a DeepMimic file."""
+    from jaxsim import characters
+
+    name, _, arg = spec.partition(":")
+    if name in characters.BUILTIN:
+        return characters.BUILTIN[name](int(arg)) if arg else characters.BUILTIN[name]()
+    if os.path.exists(spec):
+        return characters.load_deepmimic(spec)
+    raise SystemExit(f"takeoff: unknown character {spec!r}: give one of "
+                     f"{', '.join(characters.BUILTIN)} (snake:N for N links) or a DeepMimic "
+                     "character file")
+
+
+def _cmd_characters(args):
+    from jaxsim import characters
+
+    specs = args.character or ["humanoid", "quadruped", "snake:10", "snake:22", "snake:63"]
+    print(f"{'character':<24}{'links':>6}{'nq':>6}{'DoF':>6}{'path DoF':>10}{'mass kg':>9}"
+          f"{'height m':>10}")
+    for spec in specs:
+        model = _load_character(spec)
+        low, high = characters.vertical_extent(model)
+        print(f"{os.path.basename(spec):<24}{model.n_links:>6}{model.nq:>6}{model.nv:>6}"
+              f"{model.topology.max_path_dofs:>10}{float(model.mass.sum()):>9.2f}"
+              f"{high - low:>10.3f}")
+
+
+def _cmd_mjcf(args):
+    from jaxsim import to_mjcf
+
+    model = _load_character(args.character)
+    xml = to_mjcf(model, name=os.path.basename(args.character).split(".")[0].replace(":", "_"))
+    if args.out is None:
+        print(xml)
+        return
+    directory = os.path.dirname(os.path.abspath(args.out))
+    with tempfile.NamedTemporaryFile("w", dir=directory, delete=False, suffix=".tmp") as f:
+        f.write(xml)
+    os.replace(f.name, args.out)
+    print(f"wrote {args.out}")
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="takeoff", description="Batched, differentiable character simulation in JAX.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    p = sub.add_parser("characters", help="list characters with their links, DoF and mass")
+    p.add_argument("character", nargs="*",
+                   help="humanoid, quadruped, snake:N or a DeepMimic character file")
+    p.set_defaults(run=_cmd_characters)
+    p = sub.add_parser("mjcf", help="export a character as MuJoCo MJCF XML")
+    p.add_argument("character", help="humanoid, quadruped, snake:N or a DeepMimic character file")
+    p.add_argument("--out", help="output file (default: print to standard output)")
+    p.set_defaults(run=_cmd_mjcf)
+    return parser
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 0
+    args.run(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,12 @@
+"""jaxsim: articulated rigid-body simulation in JAX (takeoff's simulator).
+
+Not to be confused with the unrelated PyPI project of the same import name (ami-iit's `jaxsim`).
+"""
+
+from jaxsim import characters, dynamics, kinematics, rotations, spatial
+from jaxsim.builder import LinkSpec, build_model
+from jaxsim.mjcf import to_mjcf
+from jaxsim.model import Model, ModelError, State, Topology, rest_pose
+
+__all__ = ["characters", "dynamics", "kinematics", "rotations", "spatial", "LinkSpec",
+           "build_model", "to_mjcf", "Model", "ModelError", "State", "Topology", "rest_pose"]

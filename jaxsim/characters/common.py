@@ -1,0 +1,31 @@
+"""Helpers shared by the character builders."""
+
+import numpy as np
+
+from jaxsim import kinematics
+from jaxsim.model import Model, rest_pose
+
+# Shape frames have their long axis along Y (as DeepMimic's capsules); these turn Y onto X.
+Y_TO_X = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def vertical_extent(model: Model, q=None):
+    """Lowest and highest point (Y) of the collision shapes in pose q (the rest pose by default)."""
+    q = rest_pose(model) if q is None else q
+    rot_w, pos_w = (np.asarray(a, float) for a in kinematics.forward_kinematics(model, q))
+    lows, highs = [], []
+    for i, shape in enumerate(model.topology.shape_types):
+        if shape == "none":
+            continue
+        rot = rot_w[i] @ np.asarray(model.shape_rot[i], float)
+        centre = pos_w[i] + rot_w[i] @ np.asarray(model.shape_pos[i], float)
+        size = np.asarray(model.shape_size[i], float)
+        if shape == "sphere":
+            reach = size[0]
+        elif shape == "capsule":
+            reach = abs(rot[1, 1]) * size[1] + size[0]
+        else:
+            reach = np.abs(rot[1]) @ size
+        lows.append(centre[1] - reach)
+        highs.append(centre[1] + reach)
+    return min(lows), max(highs)

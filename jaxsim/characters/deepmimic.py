@@ -1,0 +1,127 @@
+"""Reading DeepMimic's JSON character files (and their PD controller files).
+
+Format (see the data README): `Skeleton.Joints[]` with ID, Name, Type (none = free root,
+spherical, revolute, fixed), Parent, AttachX/Y/Z and AttachThetaX/Y/Z (joint frame in the parent),
+LimLow0-2/LimHigh0-2, TorqueLim; `BodyDefs[]` with Shape, Mass, Attach* (body frame in the joint
+frame) and Param0-2 (sphere: diameter; capsule: diameter and cylinder length along Y; box: full
+extents). Revolute joints turn about their local Z axis. Controller files list `PDControllers[]`
+with Name, Kp and Kd per joint.
+"""
+
+import json
+import os
+
+import numpy as np
+
+from jaxsim import rotations
+from jaxsim.builder import LinkSpec, build_model
+from jaxsim.model import ModelError
+
+_JOINT_TYPES = {"none": "free", "spherical": "spherical", "revolute": "revolute",
+                "fixed": "fixed"}
+_LIMIT_SLOTS = {"free": 0, "spherical": 3, "revolute": 1, "fixed": 0}
+
+
+def _read_json(path):
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except json.JSONDecodeError as e:
+        raise ModelError(f"{path}: not valid JSON at line {e.lineno}, column {e.colno}: {e.msg}")
+
+
+def _field(record, key, where, kind=float):
+    if key not in record:
+        raise ModelError(f"{where}: missing field {key!r}")
+    try:
+        return kind(record[key])
+    except (TypeError, ValueError):
+        raise ModelError(f"{where}: field {key!r} has a bad value {record[key]!r}")
+
+
+def _vec(record, prefix, where):
+    return np.array([_field(record, prefix + axis, where) for axis in "XYZ"])
+
+
+def _half_sizes(shape, body, where):
+    p = [_field(body, f"Param{k}", where) for k in range(3)]
+    if shape == "sphere":
+        return (p[0] / 2, 0, 0)
+    if shape == "capsule":
+        return (p[0] / 2, p[1] / 2, 0)
+    if shape == "box":
+        return tuple(x / 2 for x in p)
+    raise ModelError(f"{where}: field 'Shape' must be sphere, capsule or box, got {shape!r}")
+
+
+def _read_gains(path):
+    data = _read_json(path)
+    if "PDControllers" not in data:
+        raise ModelError(f"{path}: missing field 'PDControllers'")
+    gains = {}
+    for k, ctrl in enumerate(data["PDControllers"]):
+        where = f"{path}: PDControllers[{k}]"
+        name = _field(ctrl, "Name", where, str)
+        gains[name] = (_field(ctrl, "Kp", f"{where} ({name})"),
+                       _field(ctrl, "Kd", f"{where} ({name})"))
+    return gains
+
+
+def load_deepmimic(path, controller=None, dtype=None):
+    """Build a `Model` from a DeepMimic character file, with gains from `controller` if given."""
+    path = os.fspath(path)
+    data = _read_json(path)
+    try:
+        joints = data["Skeleton"]["Joints"]
+    except (KeyError, TypeError):
+        raise ModelError(f"{path}: missing field 'Skeleton.Joints'")
+    if "BodyDefs" not in data:
+        raise ModelError(f"{path}: missing field 'BodyDefs'")
+    bodies = {}
+    for k, body in enumerate(data["BodyDefs"]):
+        bodies[_field(body, "ID", f"{path}: BodyDefs[{k}]", int)] = body
+    gains = _read_gains(controller) if controller is not None else {}
+
+    links, names_by_id = [], {}
+    for k, joint in enumerate(joints):
+        name = _field(joint, "Name", f"{path}: Joints[{k}]", str)
+        where = f"{path}: joint {name!r}"
+        joint_id = _field(joint, "ID", where, int)
+        kind = _field(joint, "Type", where, str)
+        if kind not in _JOINT_TYPES:
+            raise ModelError(f"{where}: field 'Type' must be one of {', '.join(_JOINT_TYPES)}, "
+                             f"got {kind!r}")
+        kind = _JOINT_TYPES[kind]
+        parent_id = _field(joint, "Parent", where, int)
+        if parent_id >= 0 and parent_id not in names_by_id:
+            raise ModelError(f"{where}: field 'Parent' is {parent_id}, which is not a joint listed "
+                             "before this one (parents must come before their children)")
+        if joint_id not in bodies:
+            raise ModelError(f"{where}: no BodyDefs entry with ID {joint_id}")
+        body = bodies[joint_id]
+        body_where = f"{path}: body {body.get('Name', joint_id)!r}"
+        shape = _field(body, "Shape", body_where, str)
+        mass = _field(body, "Mass", body_where)
+        if not mass > 0:
+            raise ModelError(f"{body_where}: field 'Mass' must be positive, got {mass}")
+        n_limits = _LIMIT_SLOTS[kind]
+        torque_limit = _field(joint, "TorqueLim", where) if kind in ("spherical", "revolute") \
+            else np.inf
+        kp, kd = gains.get(name, (0.0, 0.0))
+        if controller is not None and kind in ("spherical", "revolute") and name not in gains:
+            raise ModelError(f"{controller}: no PD controller for joint {name!r}")
+        links.append(LinkSpec(
+            name=name, parent=names_by_id.get(parent_id), joint=kind, mass=mass,
+            joint_pos=_vec(joint, "Attach", where),
+            joint_rot=np.asarray(rotations.euler_xyz_to_matrix(_vec(joint, "AttachTheta", where))),
+            axis=(0.0, 0.0, 1.0), shape=shape if shape in ("sphere", "capsule", "box") else shape,
+            shape_pos=_vec(body, "Attach", body_where),
+            shape_rot=np.asarray(rotations.euler_xyz_to_matrix(
+                _vec(body, "AttachTheta", body_where))),
+            shape_size=_half_sizes(shape, body, body_where), kp=kp, kd=kd,
+            torque_limit=torque_limit if torque_limit > 0 else np.inf,
+            q_lower=[_field(joint, f"LimLow{i}", where) for i in range(n_limits)] or -np.inf,
+            q_upper=[_field(joint, f"LimHigh{i}", where) for i in range(n_limits)] or np.inf))
+        names_by_id[joint_id] = name
+    kwargs = {} if dtype is None else {"dtype": dtype}
+    return build_model(links, source=path, **kwargs)

@@ -1,0 +1,75 @@
+"""The Articulated-Body Algorithm and its SPD modification, MABA (thesis §2.3).
+
+Both solve  (M + diag(K)) q̈ = Q − C  in O(n) with Featherstone's three passes; plain ABA is the
+case K = 0, Q = τ. MABA changes two lines of ABA (thesis eqs. 2.18–2.20):
+
+    D_i = S_iᵀ I_iᴬ S_i + K_i            with K_i = K_d,i Δt
+    u_i = Q_i − S_iᵀ p_iᴬ                with Q_i = −K_p,i (q_i + Δt q̇_i − q̄_i) − K_d,i q̇_i
+
+and passes 2 and 3 then run unchanged with these D_i and u_i (eqs. 2.24–2.29):
+
+    I_iᵃ = I_iᴬ − U_i D_i⁻¹ U_iᵀ,   p_iᵃ = p_iᴬ + I_iᵃ c_i + U_i D_i⁻¹ u_i,   U_i = I_iᴬ S_i
+    a′_i = X_i a_λ(i) + c_i,   q̈_i = D_i⁻¹ (u_i − U_iᵀ a′_i),   a_i = a′_i + S_i q̈_i.
+
+The floating root is the base case a_0 = (I_0ᴬ + K_0)⁻¹ (Q_0 − p_0ᴬ), with K_0 = 0 for an
+unactuated root and SPD gains for "hand-of-God" tracking.
+"""
+
+import jax.numpy as jnp
+
+from jaxsim import spatial
+from jaxsim.dynamics.common import (bias_forces, external_forces, gravity_vector, inv3,
+                                    outward_pass)
+from jaxsim.model import Model
+from jaxsim.tree import gather_slots, pad_links, scan_inward, scan_outward, scatter_slots
+
+
+def articulated_body_solve(model: Model, q, qd, joint_force, damping, f_ext=None, gravity=None):
+    """Solve (M + diag(damping)) q̈ = joint_force − C(q, q̇, f_ext) for q̈ (nv) in O(n).
+
+    `joint_force` is τ for ABA or the SPD force Q for MABA; `damping` is 0 for ABA or K_d Δt for
+    MABA (both (nv,)). Unused velocity slots of spherical/revolute/fixed joints get D = 1, u = 0.
+    """
+    topo = model.topology
+    links = outward_pass(model, q, qd, gravity_vector(gravity, q.dtype))
+    s, v = links["s"], links["v"]
+    c = spatial.cross_motion(v, (s @ links["qd_slots"][..., None])[..., 0])   # c_i = v_i × S_i q̇_i
+    unused = 1.0 - pad_links(jnp.asarray(topo.slot_mask[:-1], q.dtype))
+    slot_force = gather_slots(topo, joint_force)
+    slot_damping = gather_slots(topo, damping) + unused
+
+    def inward_step(acc, link):
+        (ia, pa), (e, r, s_i, c_i, force_i, damping_i) = acc, link
+        u_mat = ia @ s_i                                               # U_i = I_iᴬ S_i
+        d_inv = inv3(s_i.T @ u_mat + jnp.diag(damping_i))              # (2.19)
+        u = force_i - s_i.T @ pa                                       # (2.20)
+        u_dinv = u_mat @ d_inv
+        ia_art = ia - u_dinv @ u_mat.T                                 # (2.24)
+        pa_art = pa + ia_art @ c_i + u_dinv @ u                        # (2.25)
+        x = spatial.plucker(e, r)
+        return (u_mat, d_inv, u), (x.T @ ia_art @ x,
+                                   spatial.transform_force_to_parent(e, r, pa_art))
+
+    (ia, pa), per_level = scan_inward(
+        topo, inward_step, (links["inertia"], bias_forces(links, external_forces(model, f_ext))),
+        (links["e"], links["r"], s, c, slot_force, slot_damping))
+
+    if topo.floating:
+        a_root = jnp.linalg.solve(ia[0] + jnp.diag(damping[:6]), joint_force[:6] - pa[0])
+    else:
+        a_root = jnp.zeros(6, q.dtype)
+
+    def outward_step(parent, link, level):
+        (a_p, _), (e, r, s_i, c_i), (u_mat, d_inv, u) = parent, link, level
+        a_prime = spatial.transform_motion(e, r, a_p) + c_i
+        qdd_i = d_inv @ (u - u_mat.T @ a_prime)                        # (2.29)
+        return a_prime + s_i @ qdd_i, qdd_i
+
+    _, qdd_slots = scan_outward(topo, outward_step, (a_root, jnp.zeros(3, q.dtype)),
+                                (links["e"], links["r"], s, c), per_level)
+    return scatter_slots(topo, qdd_slots, a_root)
+
+
+def aba(model: Model, q, qd, tau, f_ext=None, gravity=None):
+    """Forward dynamics q̈ = M⁻¹(τ − C) by the Articulated-Body Algorithm (RBDA §7.3)."""
+    return articulated_body_solve(model, q, qd, tau, jnp.zeros_like(qd), f_ext, gravity)

@@ -1,0 +1,84 @@
+"""Stable-PD control: the SPD force and the four solvers of thesis eq. 2.7.
+
+SPD (thesis eq. 2.6) computes the PD torque from the next step's predicted state,
+    τ = −K_p (q + Δt q̇ − q̄) − K_d (q̇ + Δt q̈),
+so the equations of motion M q̈ + C = τ become (eq. 2.7)
+    (M + K_d Δt) q̈ = −C − K_p (q + Δt q̇ − q̄) − K_d q̇ = Q − C.
+Solvers, selected by name:
+    dense   CRBA for M, RNEA for C, Cholesky of M + K_d Δt           O(n³)
+    sparse  the same matrix factorised by branch-induced sparse LTDL   O(n d²)
+    maba    the Modified Articulated-Body Algorithm                    O(n)
+    pd      explicit PD torques τ = −K_p (q − q̄) − K_d q̇, then ABA    O(n), not stable-PD
+Each returns (q̈, τ) with τ the joint torques actually applied (eq. 2.17: τ = Q − K_d Δt q̈).
+"""
+
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
+import numpy as np
+
+from jaxsim import rotations
+from jaxsim.dynamics.aba import aba, articulated_body_solve
+from jaxsim.dynamics.crba import mass_matrix
+from jaxsim.dynamics.ltdl import ltdl_factor, ltdl_solve
+from jaxsim.dynamics.rnea import bias_torques
+from jaxsim.model import Model
+
+METHODS = ("dense", "sparse", "maba", "pd")
+
+
+def pose_error(model: Model, q, target):
+    """Per-DoF pose error q ⊖ q̄ (nv).
+
+    Revolute: θ − θ̄. Spherical (and the root's orientation): the rotation vector of q̄⁻¹ ⊗ q, the
+    rotation taking the target to the current orientation, in the child frame. Root position: the
+    world offset p − p̄ expressed in the root frame, matching the root's body-frame velocity.
+    """
+    topo = model.topology
+    err = jnp.zeros((topo.nv,), q.dtype)
+    rev = topo.links_of_type("revolute")
+    if len(rev):
+        err = err.at[topo.dof_offsets[rev]].set(q[topo.q_offsets[rev]] - target[topo.q_offsets[rev]])
+
+    def rotation_error(current, desired):
+        return rotations.quat_to_rotvec(
+            rotations.quat_multiply(rotations.quat_conjugate(desired), current))
+
+    sph = topo.links_of_type("spherical")
+    if len(sph):
+        qi = topo.q_offsets[sph][:, None] + np.arange(4)
+        vi = topo.dof_offsets[sph][:, None] + np.arange(3)
+        err = err.at[vi].set(rotation_error(q[qi], target[qi]))
+    if topo.floating:
+        rot = rotations.quat_to_matrix(rotations.quat_normalize(q[3:7]))
+        err = err.at[0:3].set(rotation_error(q[3:7], target[3:7]))
+        err = err.at[3:6].set(rot.T @ (q[0:3] - target[0:3]))
+    return err
+
+
+def spd_force(model: Model, q, qd, target, dt):
+    """Q = −K_p (q ⊖ q̄ + Δt q̇) − K_d q̇ (thesis eq. 2.20, per DoF)."""
+    return -model.kp * (pose_error(model, q, target) + dt * qd) - model.kd * qd
+
+
+def solve_spd(model: Model, q, qd, target, dt, method="maba", f_ext=None, gravity=None):
+    """Accelerations and joint torques of SPD control towards `target` (a pose, nq), eq. 2.7.
+
+    `f_ext` (n_links, 6): spatial forces on the links in link coordinates; `gravity`: 3-vector.
+    """
+    if method == "pd":
+        tau = -model.kp * pose_error(model, q, target) - model.kd * qd
+        return aba(model, q, qd, tau, f_ext, gravity), tau
+    force = spd_force(model, q, qd, target, dt)
+    damping = model.kd * dt
+    if method == "maba":
+        qdd = articulated_body_solve(model, q, qd, force, damping, f_ext, gravity)
+    elif method in ("dense", "sparse"):
+        h = mass_matrix(model, q) + jnp.diag(damping)
+        rhs = force - bias_torques(model, q, qd, f_ext, gravity)
+        if method == "dense":
+            qdd = jsl.cho_solve(jsl.cho_factor(h, lower=True), rhs)
+        else:
+            qdd = ltdl_solve(model.topology, ltdl_factor(model.topology, h), rhs)
+    else:
+        raise ValueError(f"unknown SPD method {method!r}; choose one of {', '.join(METHODS)}")
+    return qdd, force - damping * qdd

@@ -1,0 +1,80 @@
+"""Featherstone's spatial vector algebra (RBDA, ch. 2).
+
+Motion vectors are [ω; v] and force vectors [n; f]. A Plücker transform from frame A to frame B
+is given by the rotation E (A coordinates → B coordinates) and the position r of B's origin in A
+coordinates:
+
+    ᴮX_A = [[E, 0], [−E r̃, E]]      (motion),      ᴮX_A* = [[E, −E r̃], [0, E]]   (force).
+
+All functions act on one vector/matrix and broadcast over leading axes.
+"""
+
+import jax.numpy as jnp
+
+from jaxsim.rotations import skew
+
+
+def cross_motion(v, u):
+    """v × u for motion vectors (the crm operator applied to u)."""
+    w, vl = v[..., :3], v[..., 3:]
+    uw, ul = u[..., :3], u[..., 3:]
+    return jnp.concatenate([jnp.cross(w, uw), jnp.cross(w, ul) + jnp.cross(vl, uw)], -1)
+
+
+def cross_force(v, f):
+    """v ×* f for a motion vector v and a force vector f (the crf operator applied to f)."""
+    w, vl = v[..., :3], v[..., 3:]
+    n, fl = f[..., :3], f[..., 3:]
+    return jnp.concatenate([jnp.cross(w, n) + jnp.cross(vl, fl), jnp.cross(w, fl)], -1)
+
+
+def crm(v):
+    """6×6 matrix of v× (motion cross product)."""
+    w, vl = skew(v[..., :3]), skew(v[..., 3:])
+    zero = jnp.zeros_like(w)
+    return jnp.concatenate(
+        [jnp.concatenate([w, zero], -1), jnp.concatenate([vl, w], -1)], -2)
+
+
+def crf(v):
+    """6×6 matrix of v×* = −crm(v)ᵀ."""
+    return -jnp.swapaxes(crm(v), -1, -2)
+
+
+def plucker(rotation, translation):
+    """Motion transform ᴮX_A from E (A→B coordinates) and r (B's origin in A coordinates)."""
+    zero = jnp.zeros_like(rotation)
+    lower_left = -rotation @ skew(translation)
+    return jnp.concatenate(
+        [jnp.concatenate([rotation, zero], -1), jnp.concatenate([lower_left, rotation], -1)], -2)
+
+
+def transform_motion(rotation, translation, v):
+    """ᴮX_A v without forming the 6×6 matrix: [E ω; E(v − r × ω)]."""
+    w, vl = v[..., :3], v[..., 3:]
+    ew = (rotation @ w[..., None])[..., 0]
+    ev = (rotation @ (vl - jnp.cross(translation, w))[..., None])[..., 0]
+    return jnp.concatenate([ew, ev], -1)
+
+
+def transform_force_to_parent(rotation, translation, f):
+    """ᴮX_Aᵀ f: a force in B coordinates expressed in A coordinates: [Eᵀn + r × Eᵀf; Eᵀf]."""
+    et = jnp.swapaxes(rotation, -1, -2)
+    n = (et @ f[..., :3, None])[..., 0]
+    fl = (et @ f[..., 3:, None])[..., 0]
+    return jnp.concatenate([n + jnp.cross(translation, fl), fl], -1)
+
+
+def inertia_matrix(mass, com, rot_inertia):
+    """6×6 spatial inertia of a rigid body about its frame origin.
+
+    `com` is the centre of mass and `rot_inertia` the 3×3 rotational inertia about the centre of
+    mass, both in body coordinates: I = [[Ī_c + m c̃ c̃ᵀ, m c̃], [m c̃ᵀ, m 1]] (RBDA eq. 2.63).
+    """
+    c = skew(com)
+    m = mass[..., None, None]
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=c.dtype), c.shape)
+    ct = jnp.swapaxes(c, -1, -2)
+    upper = jnp.concatenate([rot_inertia + m * (c @ ct), m * c], -1)
+    lower = jnp.concatenate([m * ct, m * eye], -1)
+    return jnp.concatenate([upper, lower], -2)
