@@ -1,0 +1,65 @@
+"""Shared test setup: float64 everywhere, the reference data directory, random states."""
+
+import os
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+from jaxsim import characters  # noqa: E402  (after enabling float64)
+from jaxsim.model import rest_pose  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> pathlib.Path:
+    """The reference data (TAKEOFF_DATA, default ../shared/data); a missing one is a failure."""
+    default = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    path = pathlib.Path(os.environ.get("TAKEOFF_DATA", default))
+    if not (path / "deepmimic" / "characters" / "humanoid3d.txt").exists():
+        pytest.fail(f"reference data not found in {path}; set TAKEOFF_DATA to ../shared/data")
+    return path
+
+
+def random_state(model, seed, joint_spread=0.6, velocity_scale=1.0):
+    """A random (q, qd) with unit quaternions and a random target pose, all float64."""
+    rng = np.random.default_rng(seed)
+    topo = model.topology
+
+    def random_pose():
+        q = np.array(rest_pose(model), float)
+        for i, kind in enumerate(topo.joint_types):
+            o = topo.q_offsets[i]
+            if kind == "free":
+                q[o:o + 3] = rng.normal(size=3)
+                quat = rng.normal(size=4)
+                q[o + 3:o + 7] = quat / np.linalg.norm(quat)
+            elif kind == "spherical":
+                quat = np.concatenate([[1.0], rng.normal(scale=joint_spread, size=3)])
+                q[o:o + 4] = quat / np.linalg.norm(quat)
+            elif kind == "revolute":
+                q[o] = rng.normal(scale=joint_spread)
+        return q
+
+    q, target = random_pose(), random_pose()
+    qd = rng.normal(scale=velocity_scale, size=topo.nv)
+    return jnp.asarray(q), jnp.asarray(qd), jnp.asarray(target)
+
+
+@pytest.fixture(scope="session")
+def models(data_dir):
+    """Every character the dynamics tests run on, in float64."""
+    dm = data_dir / "deepmimic"
+    built = {
+        "humanoid": characters.humanoid(),
+        "quadruped": characters.quadruped(),
+        "snake10": characters.snake(10),
+        "deepmimic_humanoid": characters.load_deepmimic(
+            dm / "characters" / "humanoid3d.txt", dm / "controllers" / "humanoid3d_ctrl.txt"),
+        "deepmimic_dog": characters.load_deepmimic(
+            dm / "characters" / "dog3d.txt", dm / "controllers" / "dog3d_ctrl.txt"),
+    }
+    return {name: m.astype(jnp.float64) for name, m in built.items()}
