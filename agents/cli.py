@@ -10,11 +10,21 @@ def _load_character(spec: str):
     """A built-in character name (`humanoid`, `quadruped`, `snake:N`) or a DeepMimic file."""
     from jaxsim import characters
 
-    name, _, arg = spec.partition(":")
-    if name in characters.BUILTIN:
-        return characters.BUILTIN[name](int(arg)) if arg else characters.BUILTIN[name]()
+    from jaxsim.model import ModelError
+
+    name, colon, arg = spec.partition(":")
+    if name == "snake" and colon:
+        if not arg.isdigit() or int(arg) < 1:
+            raise SystemExit(f"takeoff: bad character {spec!r}: snake:N needs a positive whole "
+                             "number of links")
+        return characters.snake(int(arg))
+    if name in characters.BUILTIN and not colon:
+        return characters.BUILTIN[name]()
     if os.path.exists(spec):
-        return characters.load_deepmimic(spec)
+        try:
+            return characters.load_deepmimic(spec)
+        except ModelError as error:
+            raise SystemExit(f"takeoff: {error}")
     raise SystemExit(f"takeoff: unknown character {spec!r}: give one of "
                      f"{', '.join(characters.BUILTIN)} (snake:N for N links) or a DeepMimic "
                      "character file")

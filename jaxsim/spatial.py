@@ -14,6 +14,24 @@ import jax.numpy as jnp
 from jaxsim.rotations import skew
 
 
+def mat_vec(a, v):
+    """a @ v for small matrices, as broadcast-multiply-and-sum.
+
+    XLA on CPU runs batches of tiny `dot`s slowly and cannot fuse them with their neighbours;
+    elementwise products and sums fuse into one loop (DESIGN.md, "Performance notes").
+    """
+    return jnp.sum(a * v[..., None, :], -1)
+
+
+def mat_mat(a, b):
+    """a @ b for small matrices, as broadcast-multiply-and-sum (see `mat_vec`)."""
+    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], -2)
+
+
+def transpose(a):
+    return jnp.swapaxes(a, -1, -2)
+
+
 def cross_motion(v, u):
     """v × u for motion vectors (the crm operator applied to u)."""
     w, vl = v[..., :3], v[..., 3:]
@@ -52,16 +70,14 @@ def plucker(rotation, translation):
 def transform_motion(rotation, translation, v):
     """ᴮX_A v without forming the 6×6 matrix: [E ω; E(v − r × ω)]."""
     w, vl = v[..., :3], v[..., 3:]
-    ew = (rotation @ w[..., None])[..., 0]
-    ev = (rotation @ (vl - jnp.cross(translation, w))[..., None])[..., 0]
-    return jnp.concatenate([ew, ev], -1)
+    return jnp.concatenate(
+        [mat_vec(rotation, w), mat_vec(rotation, vl - jnp.cross(translation, w))], -1)
 
 
 def transform_force_to_parent(rotation, translation, f):
     """ᴮX_Aᵀ f: a force in B coordinates expressed in A coordinates: [Eᵀn + r × Eᵀf; Eᵀf]."""
-    et = jnp.swapaxes(rotation, -1, -2)
-    n = (et @ f[..., :3, None])[..., 0]
-    fl = (et @ f[..., 3:, None])[..., 0]
+    et = transpose(rotation)
+    n, fl = mat_vec(et, f[..., :3]), mat_vec(et, f[..., 3:])
     return jnp.concatenate([n + jnp.cross(translation, fl), fl], -1)
 
 

@@ -1,13 +1,19 @@
-"""Tree traversals as `lax.scan` over the levels of a static tree (DESIGN.md, "Dynamics").
+"""Tree traversals as `lax.scan` over the depth levels of a static tree (DESIGN.md, "Dynamics").
 
-Per-link arrays carry a leading axis of n_links + 1: rows 0..n-1 are the links and row n is a
-dummy that absorbs the padding of the level table (`Topology.levels`). One scan step processes all
-links of one depth at once (vmapped), so the number of sequential steps is the tree's depth, and
-the compiled program does not grow with the number of links.
+Non-root links are grouped by depth into a level table (`Topology.levels`, n_levels × width,
+padded). One scan step handles one whole level, vmapped over its width, so the number of
+sequential steps is the tree's depth and the compiled program does not grow with the number of
+links. The scan carries only one level's values: a link finds its parent's value in the previous
+level through a static one-hot table, which is a fusible multiply-and-sum rather than a gather or
+scatter over all links (XLA on CPU runs many small gathers/scatters slowly).
+
+Per-link arrays passed in carry a leading axis of n_links + 1: rows 0..n-1 are the links and row n
+is a dummy that the level table's padding points to (see `pad_links`).
 """
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 from jaxsim.model import Topology
@@ -20,46 +26,79 @@ def pad_links(x):
     return _map(lambda a: jnp.concatenate([a, a[:1]], 0), x)
 
 
+def parent_selectors(topology: Topology) -> np.ndarray:
+    """(n_levels, width, width) one-hot: [k, w, v] = 1 when the link in slot w of level k is the
+    child of the link in slot v of level k − 1 (of the root, in slot 0, for the first level).
+    Padding slots have all-zero rows, so they neither read real parents nor send to them."""
+    levels, parents = topology.levels, topology.padded_parents
+    n = topology.n_links
+    selectors = np.zeros(levels.shape + (levels.shape[1],))
+    for k, row in enumerate(levels):
+        previous = levels[k - 1] if k > 0 else np.array([0])
+        for w, link in enumerate(row):
+            if link < n:
+                selectors[k, w, list(previous).index(parents[link])] = 1.0
+    return selectors
+
+
+def _select(selector, values):
+    """selector (W, V) applied to values (V, ...) as a broadcast multiply-and-sum."""
+    extra = (1,) * (values.ndim - 1)
+    return jnp.sum(selector.reshape(selector.shape + extra).astype(values.dtype) * values[None], 1)
+
+
+def _to_levels(topology: Topology, link_data):
+    return _map(lambda d: d[jnp.asarray(topology.levels)], link_data)
+
+
 def scan_outward(topology: Topology, step, root_value, link_data, level_data=None):
     """Visit non-root links parents-first: value_i = step(value_parent(i), data_i[, level_i]).
 
     `root_value` is the root's value (no link axis); `link_data` has the n+1 link axis;
     `level_data`, if given, is indexed like the level table, (n_levels, width, ...), as returned by
-    `scan_inward`. Returns the values of all links, with the n+1 link axis.
+    `scan_inward`. Returns the values of all links with the n+1 link axis (the root's row is
+    `root_value`, the dummy row is zero).
     """
-    n = topology.n_links
-    parents = jnp.asarray(topology.padded_parents)
-    values = _map(lambda r: jnp.zeros((n + 1,) + r.shape, r.dtype).at[0].set(r), root_value)
+    width = topology.levels.shape[1]
+    first = _map(lambda r: jnp.zeros((width,) + r.shape, r.dtype).at[0].set(r), root_value)
+    selectors = jnp.asarray(parent_selectors(topology))
 
-    def body(values, xs):
-        idx, extra = xs
-        parent_values = _map(lambda v: v[parents[idx]], values)
-        data = _map(lambda d: d[idx], link_data)
+    def body(previous, xs):
+        selector, data, extra = xs
+        parent_values = _map(lambda p: _select(selector, p), previous)
         args = (parent_values, data) if extra is None else (parent_values, data, extra)
-        new = jax.vmap(step)(*args)
-        return _map(lambda v, x: v.at[idx].set(x), values, new), None
+        values = jax.vmap(step)(*args)
+        return values, values
 
-    values, _ = lax.scan(body, values, (jnp.asarray(topology.levels), level_data))
-    return values
+    _, per_level = lax.scan(body, first, (selectors, _to_levels(topology, link_data), level_data))
+    levels = jnp.asarray(topology.levels)
+    return _map(lambda r, v: jnp.zeros((topology.n_links + 1,) + r.shape, v.dtype)
+                .at[levels].set(v).at[0].set(r).at[-1].set(0), root_value, per_level)
 
 
-def scan_inward(topology: Topology, step, accumulators, link_data):
+def scan_inward(topology: Topology, step, own, link_data):
     """Visit non-root links children-first, accumulating into parents.
 
-    `step(acc_i, data_i) -> (output_i, contribution)`; the contribution is added to the parent's
-    accumulator before the parent is visited. Returns the final accumulators (n+1 link axis; the
-    root's row holds everything its subtree sent) and the outputs per level, (n_levels, width, ...).
+    Each link's accumulator starts as its `own` value (n+1 link axis) and receives what its
+    children send; then `step(acc_i, data_i) -> (output_i, contribution)` and the contribution
+    goes to the parent. Returns the root's accumulator (its own value plus what its children sent)
+    and the outputs per level, (n_levels, width, ...).
     """
-    parents = jnp.asarray(topology.padded_parents)
+    width = topology.levels.shape[1]
+    selectors = jnp.asarray(parent_selectors(topology))
 
-    def body(acc, idx):
-        mine = _map(lambda a: a[idx], acc)
-        data = _map(lambda d: d[idx], link_data)
-        output, contribution = jax.vmap(step)(mine, data)
-        acc = _map(lambda a, c: a.at[parents[idx]].add(c), acc, contribution)
-        return acc, output
+    def body(incoming, xs):
+        selector, mine, data = xs
+        acc = _map(jnp.add, mine, incoming)
+        output, contribution = jax.vmap(step)(acc, data)
+        to_parents = _map(lambda c: _select(selector.T, c), contribution)
+        return to_parents, output
 
-    return lax.scan(body, accumulators, jnp.asarray(topology.levels), reverse=True)
+    zeros = _map(lambda a: jnp.zeros((width,) + a.shape[1:], a.dtype), own)
+    into_root, outputs = lax.scan(
+        body, zeros, (selectors, _to_levels(topology, own), _to_levels(topology, link_data)),
+        reverse=True)
+    return _map(lambda a, i: a[0] + i[0], own, into_root), outputs
 
 
 def gather_slots(topology: Topology, generalized):

@@ -1,5 +1,6 @@
 """Helpers shared by the character builders."""
 
+import jax
 import numpy as np
 
 from jaxsim import kinematics
@@ -12,7 +13,7 @@ Y_TO_X = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 def vertical_extent(model: Model, q=None):
     """Lowest and highest point (Y) of the collision shapes in pose q (the rest pose by default)."""
     q = rest_pose(model) if q is None else q
-    rot_w, pos_w = (np.asarray(a, float) for a in kinematics.forward_kinematics(model, q))
+    rot_w, pos_w = (np.asarray(a, float) for a in jax.jit(kinematics.forward_kinematics)(model, q))
     lows, highs = [], []
     for i, shape in enumerate(model.topology.shape_types):
         if shape == "none":

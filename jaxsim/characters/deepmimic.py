@@ -40,11 +40,20 @@ def _field(record, key, where, kind=float):
 
 
 def _vec(record, prefix, where):
-    return np.array([_field(record, prefix + axis, where) for axis in "XYZ"])
+    values = np.array([_field(record, prefix + axis, where) for axis in "XYZ"])
+    for axis, value in zip("XYZ", values):
+        if not np.isfinite(value):
+            raise ModelError(f"{where}: field {prefix + axis!r} must be finite, got {value}")
+    return values
 
 
 def _half_sizes(shape, body, where):
     p = [_field(body, f"Param{k}", where) for k in range(3)]
+    used = {"sphere": 1, "capsule": 2, "box": 3}.get(shape, 0)
+    for k in range(used):
+        if not (np.isfinite(p[k]) and p[k] > 0):
+            raise ModelError(f"{where}: field 'Param{k}' must be positive for a {shape}, "
+                             f"got {p[k]}")
     if shape == "sphere":
         return (p[0] / 2, 0, 0)
     if shape == "capsule":
@@ -75,11 +84,15 @@ def load_deepmimic(path, controller=None, dtype=None):
         joints = data["Skeleton"]["Joints"]
     except (KeyError, TypeError):
         raise ModelError(f"{path}: missing field 'Skeleton.Joints'")
-    if "BodyDefs" not in data:
-        raise ModelError(f"{path}: missing field 'BodyDefs'")
+    for key, value in (("Skeleton.Joints", joints), ("BodyDefs", data.get("BodyDefs"))):
+        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+            raise ModelError(f"{path}: field {key!r} must be a list of objects")
     bodies = {}
     for k, body in enumerate(data["BodyDefs"]):
-        bodies[_field(body, "ID", f"{path}: BodyDefs[{k}]", int)] = body
+        body_id = _field(body, "ID", f"{path}: BodyDefs[{k}]", int)
+        if body_id in bodies:
+            raise ModelError(f"{path}: BodyDefs[{k}]: duplicate body ID {body_id}")
+        bodies[body_id] = body
     gains = _read_gains(controller) if controller is not None else {}
 
     links, names_by_id = [], {}
@@ -92,6 +105,12 @@ def load_deepmimic(path, controller=None, dtype=None):
             raise ModelError(f"{where}: field 'Type' must be one of {', '.join(_JOINT_TYPES)}, "
                              f"got {kind!r}")
         kind = _JOINT_TYPES[kind]
+        if joint_id in names_by_id:
+            raise ModelError(f"{where}: field 'ID' is {joint_id}, already used by joint "
+                             f"{names_by_id[joint_id]!r}")
+        if (k == 0) != (kind == "free") and not (k == 0 and kind == "fixed"):
+            raise ModelError(f"{where}: field 'Type' is {joint['Type']!r}, but only the first joint "
+                             "(the root) may be 'none', and the root must be 'none' or 'fixed'")
         parent_id = _field(joint, "Parent", where, int)
         if parent_id >= 0 and parent_id not in names_by_id:
             raise ModelError(f"{where}: field 'Parent' is {parent_id}, which is not a joint listed "
@@ -114,7 +133,7 @@ def load_deepmimic(path, controller=None, dtype=None):
             name=name, parent=names_by_id.get(parent_id), joint=kind, mass=mass,
             joint_pos=_vec(joint, "Attach", where),
             joint_rot=np.asarray(rotations.euler_xyz_to_matrix(_vec(joint, "AttachTheta", where))),
-            axis=(0.0, 0.0, 1.0), shape=shape if shape in ("sphere", "capsule", "box") else shape,
+            axis=(0.0, 0.0, 1.0), shape=shape,
             shape_pos=_vec(body, "Attach", body_where),
             shape_rot=np.asarray(rotations.euler_xyz_to_matrix(
                 _vec(body, "AttachTheta", body_where))),

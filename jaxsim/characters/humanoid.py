@@ -75,7 +75,9 @@ def _links(length_scale: Mapping[str, float], mass_scale: float):
         own = length_scale.get(name, 1.0)
         half = np.array(_half_sizes(shape, size), float)
         if shape == "capsule":
-            half[1] *= own
+            half[1] *= own          # a longer limb, not a thicker one
+        else:
+            half *= own             # spheres and boxes (head, feet, hands) grow as a whole
         links.append(LinkSpec(
             name=name, parent=parent, joint=joint, joint_pos=np.array(joint_pos) * parent_scale,
             shape=shape, shape_pos=np.array(shape_pos) * own, shape_size=half,
@@ -96,7 +98,8 @@ def humanoid(height: float | None = None, mass: float = REFERENCE_MASS,
              segment_scales: Mapping[str, float] | None = None, dtype=None):
     """DeepMimic's humanoid (1.62 m, 45 kg), optionally resized.
 
-    `segment_scales` lengthens segments (keys of `SEGMENTS`, e.g. {"thigh": 1.1}); then the whole
+    `segment_scales` lengthens segments (keys of `SEGMENTS`, e.g. {"thigh": 1.1}: capsules get
+    longer, spheres and boxes grow as a whole, child joints move out); then the whole
     body is scaled uniformly to `height` metres (shoe sole to top of head, standing), and masses
     are scaled to a total of `mass` kg. Inertias follow from the shapes. So the thesis's athlete
     is `humanoid(height=1.70, mass=60)`.

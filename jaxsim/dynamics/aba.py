@@ -21,6 +21,7 @@ from jaxsim import spatial
 from jaxsim.dynamics.common import (bias_forces, external_forces, gravity_vector, inv3,
                                     outward_pass)
 from jaxsim.model import Model
+from jaxsim.spatial import mat_mat, mat_vec
 from jaxsim.tree import gather_slots, pad_links, scan_inward, scan_outward, scatter_slots
 
 
@@ -33,37 +34,38 @@ def articulated_body_solve(model: Model, q, qd, joint_force, damping, f_ext=None
     topo = model.topology
     links = outward_pass(model, q, qd, gravity_vector(gravity, q.dtype))
     s, v = links["s"], links["v"]
-    c = spatial.cross_motion(v, (s @ links["qd_slots"][..., None])[..., 0])   # c_i = v_i × S_i q̇_i
+    c = spatial.cross_motion(v, mat_vec(s, links["qd_slots"]))        # c_i = v_i × S_i q̇_i
     unused = 1.0 - pad_links(jnp.asarray(topo.slot_mask[:-1], q.dtype))
     slot_force = gather_slots(topo, joint_force)
     slot_damping = gather_slots(topo, damping) + unused
 
     def inward_step(acc, link):
         (ia, pa), (e, r, s_i, c_i, force_i, damping_i) = acc, link
-        u_mat = ia @ s_i                                               # U_i = I_iᴬ S_i
-        d_inv = inv3(s_i.T @ u_mat + jnp.diag(damping_i))              # (2.19)
-        u = force_i - s_i.T @ pa                                       # (2.20)
-        u_dinv = u_mat @ d_inv
-        ia_art = ia - u_dinv @ u_mat.T                                 # (2.24)
-        pa_art = pa + ia_art @ c_i + u_dinv @ u                        # (2.25)
+        s_t = s_i.T
+        u_mat = mat_mat(ia, s_i)                                       # U_i = I_iᴬ S_i
+        d_inv = inv3(mat_mat(s_t, u_mat) + jnp.diag(damping_i))        # (2.19)
+        u = force_i - mat_vec(s_t, pa)                                 # (2.20)
+        u_dinv = mat_mat(u_mat, d_inv)
+        ia_art = ia - mat_mat(u_dinv, u_mat.T)                         # (2.24)
+        pa_art = pa + mat_vec(ia_art, c_i) + mat_vec(u_dinv, u)        # (2.25)
         x = spatial.plucker(e, r)
-        return (u_mat, d_inv, u), (x.T @ ia_art @ x,
+        return (u_mat, d_inv, u), (mat_mat(x.T, mat_mat(ia_art, x)),
                                    spatial.transform_force_to_parent(e, r, pa_art))
 
-    (ia, pa), per_level = scan_inward(
+    (ia_root, pa_root), per_level = scan_inward(
         topo, inward_step, (links["inertia"], bias_forces(links, external_forces(model, f_ext))),
         (links["e"], links["r"], s, c, slot_force, slot_damping))
 
     if topo.floating:
-        a_root = jnp.linalg.solve(ia[0] + jnp.diag(damping[:6]), joint_force[:6] - pa[0])
+        a_root = jnp.linalg.solve(ia_root + jnp.diag(damping[:6]), joint_force[:6] - pa_root)
     else:
         a_root = jnp.zeros(6, q.dtype)
 
     def outward_step(parent, link, level):
         (a_p, _), (e, r, s_i, c_i), (u_mat, d_inv, u) = parent, link, level
         a_prime = spatial.transform_motion(e, r, a_p) + c_i
-        qdd_i = d_inv @ (u - u_mat.T @ a_prime)                        # (2.29)
-        return a_prime + s_i @ qdd_i, qdd_i
+        qdd_i = mat_vec(d_inv, u - mat_vec(u_mat.T, a_prime))          # (2.29)
+        return a_prime + mat_vec(s_i, qdd_i), qdd_i
 
     _, qdd_slots = scan_outward(topo, outward_step, (a_root, jnp.zeros(3, q.dtype)),
                                 (links["e"], links["r"], s, c), per_level)

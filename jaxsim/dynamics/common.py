@@ -4,6 +4,7 @@ import jax.numpy as jnp
 
 from jaxsim import kinematics, spatial
 from jaxsim.model import Model
+from jaxsim.spatial import mat_vec
 from jaxsim.tree import gather_slots, pad_links, scan_outward
 
 DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
@@ -40,13 +41,13 @@ def outward_pass(model: Model, q, qd, gravity, qdd=None):
     rot, pos = kinematics.local_poses(model, q)
     s = kinematics.motion_subspaces(model)
     qd_slots = gather_slots(topo, qd)
-    g_root = rot[0].T @ gravity
+    g_root = mat_vec(rot[0].T, gravity)
     v_root = qd[:6] if topo.floating else jnp.zeros(6, qd.dtype)
     data = pad_links((jnp.swapaxes(rot, -1, -2), pos, s))
     if qdd is None:
         def step(parent, link):
             (v_p, g_p), (e, r, s_i, qd_i) = parent, link
-            return spatial.transform_motion(e, r, v_p) + s_i @ qd_i, e @ g_p
+            return spatial.transform_motion(e, r, v_p) + mat_vec(s_i, qd_i), mat_vec(e, g_p)
 
         v, g = scan_outward(topo, step, (v_root, g_root), (*data, qd_slots))
         a = None
@@ -55,10 +56,11 @@ def outward_pass(model: Model, q, qd, gravity, qdd=None):
 
         def step(parent, link):
             (v_p, a_p, g_p), (e, r, s_i, qd_i, qdd_i) = parent, link
-            vj = s_i @ qd_i
+            vj = mat_vec(s_i, qd_i)
             v_i = spatial.transform_motion(e, r, v_p) + vj
-            a_i = spatial.transform_motion(e, r, a_p) + s_i @ qdd_i + spatial.cross_motion(v_i, vj)
-            return v_i, a_i, e @ g_p
+            a_i = (spatial.transform_motion(e, r, a_p) + mat_vec(s_i, qdd_i)
+                   + spatial.cross_motion(v_i, vj))
+            return v_i, a_i, mat_vec(e, g_p)
 
         v, a, g = scan_outward(topo, step, (v_root, a_root, g_root),
                                (*data, qd_slots, gather_slots(topo, qdd)))
@@ -71,6 +73,6 @@ def bias_forces(links, f_ext):
     """p_i = v_i ×* I_i v_i − f_ext,i − I_i [0; g_i]: velocity-product, external and gravity
     forces on each link (RBDA eq. 7.2 with gravity as an external force). n+1 link axis."""
     inertia, v, g = links["inertia"], links["v"], links["g"]
-    iv = (inertia @ v[..., None])[..., 0]
-    gravity_force = inertia[..., 3:] @ g[..., None]
-    return spatial.cross_force(v, iv) - pad_links(f_ext) - gravity_force[..., 0]
+    iv = mat_vec(inertia, v)
+    gravity_force = mat_vec(inertia[..., 3:], g)
+    return spatial.cross_force(v, iv) - pad_links(f_ext) - gravity_force

@@ -23,11 +23,11 @@ def rnea(model: Model, q, qd, qdd, f_ext=None, gravity=None):
         e, r, s_i = link
         return s_i.T @ f_i, spatial.transform_force_to_parent(e, r, f_i)
 
-    f_total, tau_levels = scan_inward(model.topology, step, forces,
+    f_root, tau_levels = scan_inward(model.topology, step, forces,
                                       (links["e"], links["r"], links["s"]))
     tau_slots = jnp.zeros_like(links["qd_slots"]).at[jnp.asarray(model.topology.levels)].set(
         tau_levels)
-    return scatter_slots(model.topology, tau_slots, f_total[0])
+    return scatter_slots(model.topology, tau_slots, f_root)
 
 
 def bias_torques(model: Model, q, qd, f_ext=None, gravity=None):
