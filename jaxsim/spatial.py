@@ -15,17 +15,18 @@ from jaxsim.rotations import skew
 
 
 def mat_vec(a, v):
-    """a @ v for small matrices, as broadcast-multiply-and-sum.
+    """a @ v for small matrices, as a sum of column-times-entry products.
 
-    XLA on CPU runs batches of tiny `dot`s slowly and cannot fuse them with their neighbours;
-    elementwise products and sums fuse into one loop (DESIGN.md, "Performance notes").
+    XLA on CPU runs batches of tiny `dot`s slowly, and a `dot` or a reduction ends a fusion. Written
+    as a short sum of elementwise products (one term per inner index), the product fuses with the
+    operations around it into one loop (DESIGN.md, "Performance notes").
     """
-    return jnp.sum(a * v[..., None, :], -1)
+    return sum(a[..., :, k] * v[..., k:k + 1] for k in range(a.shape[-1]))
 
 
 def mat_mat(a, b):
-    """a @ b for small matrices, as broadcast-multiply-and-sum (see `mat_vec`)."""
-    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], -2)
+    """a @ b for small matrices, as a sum of outer products of a's columns and b's rows."""
+    return sum(a[..., :, k:k + 1] * b[..., k:k + 1, :] for k in range(a.shape[-1]))
 
 
 def transpose(a):

@@ -42,9 +42,11 @@ def parent_selectors(topology: Topology) -> np.ndarray:
 
 
 def _select(selector, values):
-    """selector (W, V) applied to values (V, ...) as a broadcast multiply-and-sum."""
+    """selector (W, V) applied to values (V, ...): Σ_v selector[:, v] values[v], written as a
+    short sum of elementwise products so that it fuses with the scan step (see `mat_vec`)."""
     extra = (1,) * (values.ndim - 1)
-    return jnp.sum(selector.reshape(selector.shape + extra).astype(values.dtype) * values[None], 1)
+    column = selector.astype(values.dtype).reshape(selector.shape + extra)
+    return sum(column[:, v] * values[v] for v in range(values.shape[0]))
 
 
 def _to_levels(topology: Topology, link_data):
