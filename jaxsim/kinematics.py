@@ -155,10 +155,3 @@ def qd_to_qdot(model: Model, q, qd):
         qdot = qdot.at[0:3].set(rot @ qd[3:6])
         qdot = qdot.at[3:7].set(quat_rate(q[3:7], qd[0:3]))
     return qdot
-
-
-def world_transforms(model: Model, q):
-    """Per-link (E, r) of the world → link Plücker transforms: E = R_worldᵀ, r = link origin."""
-    r_w, p_w = forward_kinematics(model, q)
-    return jnp.swapaxes(r_w, -1, -2), p_w
-

@@ -189,8 +189,3 @@ def sixd_to_matrix(d6):
     c1 = b / jnp.linalg.norm(b, axis=-1, keepdims=True)
     c2 = jnp.cross(c0, c1)
     return jnp.stack([c0, c1, c2], -1)
-
-
-def quat_rotate(q, v):
-    """Rotate vector v by unit quaternion q."""
-    return (quat_to_matrix(q) @ v[..., None])[..., 0]
