@@ -59,6 +59,16 @@ def _cmd_mjcf(args):
     print(f"wrote {args.out}")
 
 
+def _cmd_search(args):
+    from agents import strategy_search
+    from agents.config import ConfigError
+
+    try:
+        strategy_search.run(args.config, args.out, args.set, args.workers)
+    except (ConfigError, ValueError) as error:
+        raise SystemExit(f"takeoff search: {error}")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="takeoff", description="Batched, differentiable character simulation in JAX.")
@@ -71,6 +81,16 @@ def build_parser():
     p.add_argument("character", help="humanoid, quadruped, snake:N or a DeepMimic character file")
     p.add_argument("--out", help="output file (default: print to standard output)")
     p.set_defaults(run=_cmd_mjcf)
+    p = sub.add_parser("search", help="Bayesian Diversity Search (or random search) for diverse "
+                                      "strategies of a black box named in a config")
+    p.add_argument("config", help="TOML config, e.g. configs/search_landscape.toml")
+    p.add_argument("--out", help="run directory (default runs/<config name>); an existing one "
+                                 "is resumed")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a config value (repeatable)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="evaluate a round's points in this many threads at once")
+    p.set_defaults(run=_cmd_search)
     return parser
 
 

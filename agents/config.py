@@ -1,0 +1,109 @@
+"""TOML config files read into typed, frozen dataclasses.
+
+A schema is a frozen dataclass whose fields are plain values (bool, int, float, str, tuples of
+them) or further dataclasses (TOML tables). Every value is checked against its field's type; an
+unknown key, a wrong type or a value the dataclass's own `__post_init__` rejects is a `ConfigError`
+naming the file and the dotted key. Overrides `section.key=value` (the `--set` of the command line)
+are applied before checking; the value is read as a TOML value, or as a string when it is not one
+(so `--set search.strategy=random` needs no quotes).
+"""
+
+import dataclasses
+import tomllib
+import types
+import typing
+from pathlib import Path
+
+
+class ConfigError(ValueError):
+    """A config file or override that cannot be used; the message names the file and key."""
+
+
+def load(path, schema, overrides=()):
+    """Read the TOML file at `path` into `schema`, after applying `overrides` ("a.b=value")."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from None
+    for override in overrides:
+        apply_override(data, override, path)
+    return build(schema, data, str(path))
+
+
+def apply_override(data, override, source):
+    """Set the dotted key of "a.b.c=value" in the nested dict `data`."""
+    key, equals, text = override.partition("=")
+    if not equals or not key.strip():
+        raise ConfigError(f"{source}: override {override!r} is not of the form section.key=value")
+    try:
+        value = tomllib.loads(f"value = {text}")["value"]
+    except tomllib.TOMLDecodeError:
+        value = text
+    *sections, name = key.strip().split(".")
+    table = data
+    for section in sections:
+        table = table.setdefault(section, {})
+        if not isinstance(table, dict):
+            raise ConfigError(f"{source}: override {override!r}: {section!r} is not a table")
+    table[name] = value
+
+
+def build(schema, data, source, prefix=""):
+    """Instantiate the dataclass `schema` from the dict `data`, checking keys and types."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: {prefix.rstrip('.') or 'the file'} must be a table")
+    fields = {f.name: f for f in dataclasses.fields(schema)}
+    hints = typing.get_type_hints(schema)
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConfigError(f"{source}: unknown key {prefix + unknown[0]!r}; "
+                          f"{prefix.rstrip('.') or 'the top level'} takes "
+                          f"{', '.join(fields)}")
+    values = {}
+    for name, value in data.items():
+        values[name] = _convert(hints[name], value, source, prefix + name)
+    try:
+        return schema(**values)
+    except ValueError as error:
+        where = f"[{prefix.rstrip('.')}]" if prefix else "config"
+        raise ConfigError(f"{source}: {where}: {error}") from None
+
+
+def _convert(kind, value, source, key):
+    if dataclasses.is_dataclass(kind):
+        return build(kind, value, source, key + ".")
+    origin = typing.get_origin(kind)
+    if origin in (typing.Union, types.UnionType):
+        options = typing.get_args(kind)
+        if value is None and type(None) in options:
+            return None
+        errors = []
+        for option in options:
+            if option is type(None):
+                continue
+            try:
+                return _convert(option, value, source, key)
+            except ConfigError as error:
+                errors.append(error)
+        raise errors[0]
+    if origin is tuple:
+        if not isinstance(value, list):
+            raise _type_error(source, key, "a list", value)
+        item = typing.get_args(kind)[0]
+        return tuple(_convert(item, v, source, f"{key}[{i}]") for i, v in enumerate(value))
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if kind is int and isinstance(value, bool) or not isinstance(value, kind):
+        raise _type_error(source, key, f"{'a' if kind is not int else 'an'} {kind.__name__}",
+                          value)
+    return value
+
+
+def _type_error(source, key, expected, value):
+    return ConfigError(f"{source}: key {key!r} must be {expected}; got {value!r} "
+                       f"({type(value).__name__})")
+

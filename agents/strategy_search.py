@@ -1,0 +1,117 @@
+"""`takeoff search CONFIG`: a strategy search (BDS or random) over a black box named in a config.
+
+The config file (see configs/search_landscape.toml):
+
+    black_box = "landscape"       # what g(x) is; for now the synthetic strategy landscapes
+    [search]                      # bds.search.SearchSettings
+    [landscape]                   # bds.landscapes.LandscapeSettings
+    [box]                         # optional lower/upper bounds of x (default: the unit box)
+
+The run directory holds the resolved config (config.json) and the evaluation log
+(evaluations.jsonl); running the same command again resumes the search from that log.
+"""
+
+import dataclasses
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from agents import config as config_io
+from bds.landscapes import LandscapeSettings, StrategyLandscape
+from bds.search import SearchSettings, check_bounds, search
+
+BLACK_BOXES = ("landscape",)
+
+
+@dataclass(frozen=True)
+class Box:
+    lower: tuple[float, ...] = ()     # empty: the unit box
+    upper: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    black_box: str = "landscape"
+    search: SearchSettings = field(default_factory=SearchSettings)
+    landscape: LandscapeSettings = field(default_factory=LandscapeSettings)
+    box: Box = field(default_factory=Box)
+
+    def __post_init__(self):
+        if self.black_box not in BLACK_BOXES:
+            raise ValueError(f"black_box must be one of {', '.join(BLACK_BOXES)}; got "
+                             f"{self.black_box!r}")
+        if self.box.lower or self.box.upper:
+            try:
+                lower, _ = check_bounds(self.box.lower, self.box.upper)
+            except ValueError as error:
+                raise ValueError(f"[box]: {error}") from None
+            if lower.size != self.landscape.dim:
+                raise ValueError(f"[box] has {lower.size} dimensions but landscape.dim is "
+                                 f"{self.landscape.dim}")
+
+    def bounds(self):
+        if self.box.lower:
+            return np.array(self.box.lower), np.array(self.box.upper)
+        return np.zeros(self.landscape.dim), np.ones(self.landscape.dim)
+
+
+def black_box(config: SearchConfig):
+    """g(x) for the configured black box, and a function naming the strategy of a point (or
+    None where the black box has no known labels)."""
+    landscape = StrategyLandscape(config.landscape)
+    lower, upper = config.bounds()
+
+    def g(x):
+        return landscape((np.asarray(x) - lower) / (upper - lower))
+
+    def label(x):
+        return int(landscape.label((np.asarray(x) - lower) / (upper - lower)))
+    return g, label
+
+
+def write_json_atomic(path, value):
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        json.dump(value, f, indent=2)
+        f.write("\n")
+    os.replace(tmp, path)
+
+
+def run(config_path, out_dir=None, overrides=(), workers=1, echo=print):
+    """Load the config, run or resume the search, print progress and a summary; returns the
+    SearchResult."""
+    config = config_io.load(config_path, SearchConfig, overrides)
+    out_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out_dir / "config.json", dataclasses.asdict(config))
+    g, label = black_box(config)
+    settings = config.search
+    seen = set()
+
+    def progress(record):
+        strategy = label(record["x"])
+        new = strategy not in seen
+        seen.add(strategy)
+        feature = ", ".join(f"{v:.3f}" for v in record["feature"])
+        echo(f"[{record['index'] + 1:3d}/{settings.budget}] {record['kind']:8s} "
+             f"feature ({feature})  strategy {strategy}{' (new)' if new else ''}  "
+             f"distinct {len(seen)}")
+
+    log = out_dir / "evaluations.jsonl"
+    if log.exists():
+        echo(f"resuming from {log}")
+    result = search(g, *config.bounds(), settings, log=log, workers=workers, progress=progress)
+    labels = [label(x) for x in result.x]
+    echo(f"\n{settings.strategy} search: {len(set(labels))} distinct strategies in "
+         f"{len(labels)} evaluations (log: {log})")
+    echo(f"{'strategy':>8} {'found at':>9} {'count':>6}  feature")
+    for strategy in sorted(set(labels), key=labels.index):
+        first = labels.index(strategy)
+        feature = ", ".join(f"{v:.3f}" for v in result.features[first])
+        echo(f"{strategy:>8} {first + 1:>9} {labels.count(strategy):>6}  ({feature})")
+    return result

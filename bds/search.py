@@ -1,0 +1,337 @@
+"""The search loop of Bayesian Diversity Search (thesis §3.5.1, Algorithm 1), batched BDS and a
+random-search baseline behind one interface.
+
+Algorithm 1: evaluate `initial` random points; then alternate `explore` picks that maximise the
+posterior standard deviation (multi-start L-BFGS) and `diverse` picks that maximise the expected
+distance to the nearest feature seen so far (DIRECT), refitting the GP before every pick.
+
+Batched BDS (the thesis's future work, §3.8): each round picks `batch` points before any of them is
+evaluated. After each pick, the pending point is added to the GP with its posterior mean as a
+fantasised outcome ("kriging believer", hyperparameters kept): the posterior variance there drops,
+so exploration moves elsewhere, and its believed feature joins the features the diversity
+acquisition must differ from. With `batch = 1` this is Algorithm 1. A round's evaluations may run at
+once (`workers`).
+
+Persistence: every event is appended to a JSONL log and flushed to disk at once — a header with the
+settings, each round's planned points before they are evaluated, and each evaluation the moment it
+returns. `search` on an existing log resumes: finished evaluations are read back, not repeated; a
+round that was planned but not finished evaluates only its missing points; the next decisions are
+computed from the same history. A half-written last line (a crash during a write) is dropped.
+
+Every random choice comes from the seed and the index of the pick, so the same settings give the
+same search on the same machine.
+"""
+
+import dataclasses
+import json
+import math
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bds import acquisition, gp
+from bds.optimize import direct, maximize_lbfgs
+
+STRATEGIES = ("bds", "random")
+CAPACITY_STEP = 16              # observation arrays are padded to a multiple of this
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    strategy: str = "bds"           # "bds" or "random"
+    budget: int = 20                # evaluations in all
+    initial: int = 4                # random evaluations before the first model-based pick
+    explore: int = 3                # N_exp: exploration picks per cycle
+    diverse: int = 3                # N_opt: diversity picks per cycle
+    batch: int = 1                  # q: points picked per round (1 = Algorithm 1)
+    seed: int = 0
+    distance: str = "euclidean"     # feature distance: euclidean, angle or rotation
+    mc_samples: int = 128           # Monte-Carlo samples of the diversity acquisition
+    gp_restarts: int = 8
+    gp_steps: int = 200
+    lbfgs_starts: int = 8
+    direct_evaluations: int = 400
+
+    def __post_init__(self):
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}; got "
+                             f"{self.strategy!r}")
+        acquisition.distance_function(self.distance)
+        for name in ("budget", "initial", "batch", "mc_samples", "gp_restarts", "gp_steps",
+                     "lbfgs_starts", "direct_evaluations"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1; got {getattr(self, name)}")
+        if self.explore < 0 or self.diverse < 0 or self.explore + self.diverse == 0:
+            raise ValueError("explore and diverse must be non-negative and not both zero")
+        if self.strategy == "bds" and self.initial < self.batch:
+            raise ValueError(f"initial ({self.initial}) must be at least batch ({self.batch}): "
+                             "the first round has no observations to model")
+
+    def kind(self, index):
+        """What pick `index` is: 'initial', 'explore' or 'diverse' (BDS) or 'random'."""
+        if self.strategy == "random":
+            return "random"
+        if index < self.initial:
+            return "initial"
+        cycle = (index - self.initial) % (self.explore + self.diverse)
+        return "explore" if cycle < self.explore else "diverse"
+
+
+class SearchResult(NamedTuple):
+    x: np.ndarray              # (n, d) evaluated points, in the user's box
+    features: np.ndarray       # (n, m)
+    kinds: list
+
+
+def check_bounds(lower, upper):
+    """Bounds as float arrays, or a ValueError saying what is wrong with them."""
+    try:
+        lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"bounds must be lists of numbers; got lower={lower!r}, "
+                         f"upper={upper!r}") from None
+    if lower.ndim != 1 or lower.size == 0 or lower.shape != upper.shape:
+        raise ValueError(f"lower and upper bounds must be non-empty lists of the same length; "
+                         f"got {lower.size} and {upper.size} numbers")
+    if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper))):
+        raise ValueError("bounds must be finite numbers")
+    bad = np.flatnonzero(upper <= lower)
+    if bad.size:
+        i = bad[0]
+        raise ValueError(f"upper bound must exceed lower bound in every dimension; dimension {i} "
+                         f"has lower {lower[i]} and upper {upper[i]}")
+    return lower, upper
+
+
+# ---------------------------------------------------------------------------------------------
+# decisions (all in the unit box)
+
+
+def _random_point(settings, index, dim):
+    return np.random.default_rng([settings.seed, index]).uniform(size=dim)
+
+
+def _padded(rows, capacity, fill=0.0):
+    out = np.full((capacity, rows.shape[1]), fill)
+    out[:len(rows)] = rows
+    return out
+
+
+@partial(jax.jit, static_argnames=("dim", "starts"))
+def _explore(posterior, key, dim, starts):
+    return maximize_lbfgs(partial(acquisition.exploration, posterior), dim, key, starts=starts)
+
+
+@partial(jax.jit, static_argnames=("distance",))
+def _diversity(posterior, points, observed, observed_mask, base, distance):
+    return acquisition.diversity(posterior, points, observed, observed_mask, base, distance)
+
+
+def _diversity_objective(posterior, observed, observed_mask, base, distance):
+    """DIRECT's objective: −diversity at a batch of unit points, padded to a power of two so
+    the jitted acquisition compiles for few shapes."""
+    def objective(points):
+        n = len(points)
+        size = 1 << max(n - 1, 0).bit_length()
+        padded = np.concatenate([points, np.repeat(points[:1], size - n, axis=0)])
+        values = _diversity(posterior, jnp.asarray(padded), observed, observed_mask, base, distance)
+        return -np.asarray(values)[:n]
+    return objective
+
+
+def _pick(settings, kind, posterior, observed_f, observed_mask, dim, key):
+    if kind == "explore":
+        point, _ = _explore(posterior, key, dim, settings.lbfgs_starts)
+        return np.asarray(point)
+    base = jax.random.normal(key, (settings.mc_samples, observed_f.shape[1]), observed_f.dtype)
+    objective = _diversity_objective(posterior, observed_f, observed_mask, base,
+                                     acquisition.distance_function(settings.distance))
+    return direct(objective, np.zeros(dim), np.ones(dim),
+                  max_evaluations=settings.direct_evaluations).x
+
+
+def plan_round(settings, first_index, count, x_unit, features, dim):
+    """The next `count` points (unit box, d = dim) for picks first_index, first_index + 1, …,
+    given the evaluated x_unit (n, d) and features (n, m). Returns (points, kinds)."""
+    kinds = [settings.kind(first_index + j) for j in range(count)]
+    if all(kind in ("initial", "random") for kind in kinds):
+        return [_random_point(settings, first_index + j, dim) for j in range(count)], kinds
+    n = len(x_unit)
+    capacity = CAPACITY_STEP * math.ceil((n + count) / CAPACITY_STEP)
+    mask = np.arange(capacity) < n
+    xs, fs = _padded(x_unit, capacity), _padded(features, capacity)
+    key = jax.random.fold_in(jax.random.PRNGKey(settings.seed), first_index)
+    posterior = gp.fit(xs, fs, mask, key=key, restarts=settings.gp_restarts,
+                       steps=settings.gp_steps)
+    picks = []
+    for j, kind in enumerate(kinds):
+        index = first_index + j
+        if kind in ("initial", "random"):
+            point = _random_point(settings, index, dim)
+        else:
+            point = _pick(settings, kind, posterior, jnp.asarray(fs), jnp.asarray(mask), dim,
+                          jax.random.fold_in(key, index))
+        picks.append(point)
+        if j + 1 < count:                         # fantasise the pending point's outcome
+            believed, _ = gp.predict(posterior, jnp.asarray(point)[None])
+            xs[n + j], fs[n + j], mask[n + j] = point, np.asarray(believed)[0], True
+            posterior = gp.condition(posterior, jnp.asarray(xs), jnp.asarray(fs),
+                                     jnp.asarray(mask))
+    return picks, kinds
+
+
+# ---------------------------------------------------------------------------------------------
+# the log
+
+
+class SearchLog:
+    """Append-only JSONL record of a search; see the module docstring."""
+
+    def __init__(self, path, header):
+        self.path = Path(path) if path is not None else None
+        self.header = header
+        self.plans = []            # (first_index, points, kinds) in order
+        self.evaluations = {}      # index -> record
+        if self.path is not None and self.path.exists():
+            self._read()
+        else:
+            self._append({"event": "start", **header})
+
+    def _read(self):
+        with open(self.path, encoding="utf-8") as f:
+            text = f.read()
+        lines = text.split("\n")
+        if lines and lines[-1] == "":
+            lines.pop()
+        elif lines:                               # a crash during the last write: drop it
+            try:
+                json.loads(lines[-1])
+            except json.JSONDecodeError:
+                lines.pop()
+                self._rewrite(lines)
+        records = []
+        for number, line in enumerate(lines, 1):
+            try:
+                records.append(json.loads(line))
+            except json.JSONDecodeError as error:
+                raise ValueError(f"{self.path}, line {number}: not valid JSON ({error.msg})") \
+                    from None
+        if not records or records[0].get("event") != "start":
+            raise ValueError(f"{self.path}: not a search log (the first line must be the "
+                             "search's 'start' record)")
+        stored = {key: value for key, value in records[0].items() if key != "event"}
+        for key, value in self.header.items():
+            if stored.get(key) != value:
+                raise ValueError(f"{self.path}: this log belongs to a different search: its "
+                                 f"{key} is {stored.get(key)!r}, the settings give {value!r}; "
+                                 "use another log file or the same settings")
+        for number, record in enumerate(records[1:], 2):
+            if record.get("event") == "plan":
+                self.plans.append((record["first_index"], record["points"], record["kinds"]))
+            elif record.get("event") == "evaluation":
+                self.evaluations[record["index"]] = record
+            else:
+                raise ValueError(f"{self.path}, line {number}: unknown event "
+                                 f"{record.get('event')!r}")
+
+    def _rewrite(self, lines):
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write("".join(line + "\n" for line in lines))
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, self.path)
+
+    def _append(self, record):
+        if self.path is None:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path, "a", encoding="utf-8") as f:
+            f.write(json.dumps(record) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    def add_plan(self, first_index, points, kinds):
+        self.plans.append((first_index, points, kinds))
+        self._append({"event": "plan", "first_index": first_index, "points": points,
+                      "kinds": kinds})
+
+    def add_evaluation(self, record):
+        self.evaluations[record["index"]] = record
+        self._append({"event": "evaluation", **record})
+
+
+# ---------------------------------------------------------------------------------------------
+# the loop
+
+
+def _feature(value, index, x):
+    feature = np.atleast_1d(np.asarray(value, float))
+    if feature.ndim != 1 or not np.all(np.isfinite(feature)):
+        raise ValueError(f"evaluation {index} at x = {list(x)} returned {value!r}; the black box "
+                         "must return a finite number or a 1-D list of finite numbers")
+    return feature
+
+
+def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(), log=None,
+           workers=1, progress=None) -> SearchResult:
+    """Run (or resume) a search for diverse features of the black box g over [lower, upper].
+
+    g(x) takes a point (d,) of the box and returns its feature (a number or (m,) numbers).
+    `log` is the JSONL file to append to (None: keep nothing). `workers` > 1 evaluates a round's
+    points in that many threads at once. `progress(record)` is called after every evaluation
+    with its log record (index, kind, x, feature, seconds).
+    """
+    lower, upper = check_bounds(lower, upper)
+    dim = lower.size
+    header = {"lower": lower.tolist(), "upper": upper.tolist(),
+              **{k: v for k, v in dataclasses.asdict(settings).items() if k != "budget"}}
+    record_log = SearchLog(log, header)
+
+    def history():
+        done = [record_log.evaluations[i] for i in sorted(record_log.evaluations)]
+        x = np.array([gp.to_unit(np.array(r["x"]), lower, upper) for r in done]).reshape(-1, dim)
+        f = np.array([r["feature"] for r in done])
+        return x, f
+
+    def evaluate(index, point_unit, kind):
+        x = gp.from_unit(np.asarray(point_unit), lower, upper)
+        start = time.perf_counter()
+        feature = _feature(g(x), index, x)
+        return {"index": index, "kind": kind, "x": x.tolist(), "feature": feature.tolist(),
+                "seconds": time.perf_counter() - start}
+
+    def finish(record):
+        record_log.add_evaluation(record)
+        if progress is not None:
+            progress(record)
+
+    plans = {first: (points, kinds) for first, points, kinds in record_log.plans}
+    first = 0
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        while first < settings.budget:
+            count = min(settings.batch, settings.budget - first)
+            if first in plans:
+                points, kinds = plans[first]
+            else:
+                x_unit, features = history()
+                points, kinds = plan_round(settings, first, count, x_unit, features, dim)
+                points = [np.asarray(p).tolist() for p in points]
+                record_log.add_plan(first, points, kinds)
+            todo = [first + j for j in range(len(points))
+                    if first + j not in record_log.evaluations]
+            jobs = [pool.submit(evaluate, i, points[i - first], kinds[i - first]) for i in todo]
+            for job in as_completed(jobs):
+                finish(job.result())
+            first += len(points)
+    done = [record_log.evaluations[i] for i in range(settings.budget)]
+    return SearchResult(np.array([r["x"] for r in done]), np.array([r["feature"] for r in done]),
+                        [r["kind"] for r in done])

@@ -1,0 +1,131 @@
+"""How many distinct strategies do BDS, batched BDS and random search find on synthetic strategy
+landscapes, and how long does one BDS decision take?
+
+For each of N random landscapes (bds.landscapes: a 4-D box split into 8 strategies of very unequal
+size by a weighted Voronoi diagram, 2 of them owning most of the box), each method runs a 20-
+evaluation search with the landscape's seed; we count the distinct strategies among the first 10
+and the first 20 evaluations. The methods are
+
+    random     uniform random search
+    bds        Algorithm 1 (4 random, then 3 exploration / 3 diversity picks alternating), q = 1
+    bds-q4     batched BDS, 4 points per round (counted per evaluation, not per round)
+
+Decision time: the wall time of planning one BDS pick (GP fit + acquisition + optimisation) with
+50 observations in a 4-D box, for an exploration and a diversity pick; median of repeats after a
+warm-up (compile time reported separately).
+
+Run:  python benchmarks/bds.py                       (50 landscapes)
+      python benchmarks/bds.py --landscapes 5 --budget 10
+Writes JSON (default benchmarks/results/bds.json) and prints a markdown table.
+"""
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+# This script's own name is `bds`: drop its folder from the import path so `bds` is the package.
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
+from bds.landscapes import LandscapeSettings, StrategyLandscape  # noqa: E402
+from bds.search import SearchSettings, plan_round, search  # noqa: E402
+
+DEFAULT_JSON = Path(__file__).resolve().parent / "results" / "bds.json"
+METHODS = {
+    "random": dict(strategy="random"),
+    "bds": dict(strategy="bds", batch=1),
+    "bds-q4": dict(strategy="bds", batch=4),
+}
+
+
+def distinct_counts(landscape, x, checkpoints):
+    labels = landscape.label(np.asarray(x))
+    return {c: len(set(labels[:c].tolist())) for c in checkpoints}
+
+
+def run_diversity(args):
+    rows = []
+    for seed in range(args.landscapes):
+        landscape = StrategyLandscape(LandscapeSettings(seed=seed))
+        for method, options in METHODS.items():
+            settings = SearchSettings(budget=args.budget, seed=seed, **options)
+            start = time.perf_counter()
+            result = search(landscape, np.zeros(4), np.ones(4), settings)
+            counts = distinct_counts(landscape, result.x, args.checkpoints)
+            rows.append({"landscape": seed, "method": method, "seconds":
+                         time.perf_counter() - start, **{f"found@{c}": counts[c]
+                                                         for c in args.checkpoints}})
+            print(f"landscape {seed:3d} {method:7s} " + "  ".join(
+                f"@{c}: {counts[c]}" for c in args.checkpoints), file=sys.stderr, flush=True)
+    return rows
+
+
+def time_decisions(repeats):
+    """Seconds to plan one exploration and one diversity pick with 50 observations."""
+    landscape = StrategyLandscape(LandscapeSettings(seed=0))
+    x = np.random.default_rng(0).uniform(size=(50, 4))
+    features = np.array([landscape(p) for p in x])
+    out = {}
+    for kind, index in (("explore", 4), ("diverse", 7)):
+        settings = SearchSettings(initial=4, explore=3, diverse=3)
+        assert settings.kind(index) == kind
+        times = []
+        for _ in range(repeats + 1):
+            start = time.perf_counter()
+            plan_round(settings, index, 1, x, features, 4)
+            times.append(time.perf_counter() - start)
+        out[kind] = {"first_call_s": times[0], "median_s": statistics.median(times[1:]),
+                     "repeats": repeats}
+    return out
+
+
+def summary(rows, checkpoints):
+    table = {}
+    for method in METHODS:
+        mine = [r for r in rows if r["method"] == method]
+        table[method] = {c: (float(np.mean([r[f"found@{c}"] for r in mine])),
+                             float(np.std([r[f"found@{c}"] for r in mine]) / np.sqrt(len(mine))))
+                         for c in checkpoints}
+    return table
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--landscapes", type=int, default=50)
+    parser.add_argument("--budget", type=int, default=20)
+    parser.add_argument("--repeats", type=int, default=5, help="timed decisions per kind")
+    parser.add_argument("--json", type=Path, default=DEFAULT_JSON)
+    args = parser.parse_args(argv)
+    args.checkpoints = sorted({c for c in (10, 20) if c <= args.budget} | {args.budget})
+    decisions = time_decisions(args.repeats)
+    rows = run_diversity(args)
+    table = summary(rows, args.checkpoints)
+    lines = ["| method | " + " | ".join(f"distinct @{c} (mean ± s.e.)" for c in args.checkpoints)
+             + " |", "|---" * (len(args.checkpoints) + 1) + "|"]
+    for method, by_checkpoint in table.items():
+        lines.append(f"| {method} | " + " | ".join(
+            f"{mean:.2f} ± {err:.2f}" for mean, err in by_checkpoint.values()) + " |")
+    random_10 = table["random"][args.checkpoints[0]][0]
+    lines.append("")
+    lines.append(f"bds / random at {args.checkpoints[0]}: "
+                 f"{table['bds'][args.checkpoints[0]][0] / random_10:.2f}; bds-q4 / bds: "
+                 f"{table['bds-q4'][args.checkpoints[0]][0] / table['bds'][args.checkpoints[0]][0]:.2f}")
+    for kind, t in decisions.items():
+        lines.append(f"one {kind} decision with 50 observations: median {t['median_s']:.3f} s "
+                     f"(first call, with compilation: {t['first_call_s']:.2f} s)")
+    print("\n".join(lines))
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.json.with_name(args.json.name + ".tmp")
+    tmp.write_text(json.dumps({"command": " ".join(sys.argv), "landscapes": args.landscapes,
+                               "summary": {m: {str(c): v for c, v in t.items()}
+                                           for m, t in table.items()},
+                               "decisions": decisions, "rows": rows}, indent=2) + "\n")
+    tmp.replace(args.json)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,129 @@
+"""The Gaussian process and the acquisition functions of BDS, against independent references."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bds import acquisition, gp
+from bds.novelty import novelty_reward
+
+
+def numpy_matern52(x1, x2, lengthscales, variance):
+    r = np.sqrt(np.sum(((x1[:, None] - x2[None]) / lengthscales) ** 2, axis=-1))
+    return variance * (1 + np.sqrt(5) * r + 5 * r ** 2 / 3) * np.exp(-np.sqrt(5) * r)
+
+
+def test_kernel_matrix_is_symmetric_positive_definite_with_finite_gradients():
+    x = np.random.default_rng(0).uniform(size=(30, 3))
+    k = np.asarray(gp.matern52(jnp.asarray(x), jnp.asarray(x), jnp.array([0.3, 0.5, 1.0]), 2.0))
+    np.testing.assert_allclose(k, k.T, atol=1e-14)
+    np.testing.assert_allclose(np.diag(k), 2.0)
+    assert np.linalg.eigvalsh(k).min() > 0
+    np.testing.assert_allclose(k, numpy_matern52(x, x, np.array([0.3, 0.5, 1.0]), 2.0), rtol=1e-12)
+    # At zero distance the kernel is flat: the gradient is zero, not NaN.
+    grad = jax.grad(lambda p: gp.matern52(p[None], jnp.zeros((1, 3)), jnp.ones(3), 1.0)[0, 0])(
+        jnp.zeros(3))
+    np.testing.assert_array_equal(grad, 0.0)
+
+
+def test_posterior_matches_a_numpy_reference_and_ignores_padding():
+    rng = np.random.default_rng(1)
+    x, x_star = rng.uniform(size=(12, 2)), rng.uniform(size=(7, 2))
+    y = np.stack([np.sin(6 * x[:, 0]) + x[:, 1], np.cos(4 * x[:, 1])], axis=1)
+    prior_mean = np.array([0.2, -0.1])
+    posterior = gp.fit(x, y, prior_mean=prior_mean, restarts=2, steps=50)
+    mean, variance = gp.predict(posterior, jnp.asarray(x_star))
+    for m in range(2):
+        hyper = jax.tree.map(lambda leaf: np.asarray(leaf[m]), posterior.hyper)
+        scale = float(posterior.scale[m])
+        k = numpy_matern52(x, x, hyper.lengthscales, hyper.signal_variance)
+        k += np.eye(12) * (hyper.noise_variance + gp.JITTER * hyper.signal_variance)
+        k_star = numpy_matern52(x_star, x, hyper.lengthscales, hyper.signal_variance)
+        expected_mean = prior_mean[m] + scale * k_star @ np.linalg.solve(
+            k, (y[:, m] - prior_mean[m]) / scale)
+        expected_var = scale ** 2 * (hyper.signal_variance
+                                     - np.sum(k_star * np.linalg.solve(k, k_star.T).T, axis=1))
+        np.testing.assert_allclose(mean[:, m], expected_mean, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(variance[:, m], expected_var, rtol=1e-6, atol=1e-10)
+    # The same data padded to 16 rows with junk in the masked rows gives the same posterior.
+    padded_x = np.concatenate([x, rng.uniform(size=(4, 2))])
+    padded_y = np.concatenate([y, rng.normal(size=(4, 2)) * 100])
+    mask = np.arange(16) < 12
+    conditioned = gp.condition(posterior, jnp.asarray(padded_x), jnp.asarray(padded_y),
+                               jnp.asarray(mask))
+    mean_padded, variance_padded = gp.predict(conditioned, jnp.asarray(x_star))
+    np.testing.assert_allclose(mean_padded, mean, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(variance_padded, variance, rtol=1e-10, atol=1e-12)
+
+
+def test_marginal_likelihood_fit_recovers_known_lengthscales():
+    """Draw from a GP with lengthscales (0.15, 1.5) and check the fit finds a short scale on the
+    first input and a long one on the second."""
+    rng = np.random.default_rng(2)
+    x = rng.uniform(size=(120, 2))
+    true_scales = np.array([0.15, 1.5])
+    k = numpy_matern52(x, x, true_scales, 1.0) + 1e-4 * np.eye(120)
+    y = np.linalg.cholesky(k) @ rng.normal(size=120)
+    posterior = gp.fit(x, y, prior_mean=0.0, key=jax.random.PRNGKey(3), restarts=4, steps=300)
+    scales = np.asarray(posterior.hyper.lengthscales[0])
+    # Lengthscales are in units where y has unit scale; they do not depend on the scale.
+    assert 0.08 < scales[0] < 0.3, scales
+    assert scales[1] > 0.7, scales
+    assert float(posterior.hyper.noise_variance[0]) < 0.05
+
+
+def test_monte_carlo_diversity_converges_to_the_closed_form():
+    rng = np.random.default_rng(4)
+    x = rng.uniform(size=(6, 1))
+    y = np.sin(5 * x[:, 0])
+    posterior = gp.fit(x, y, restarts=2, steps=50)
+    x_star = jnp.array([[0.05], [0.5], [0.97]])
+    mean, variance = gp.predict(posterior, x_star)
+    observed = jnp.asarray(y[:, None])
+    exact = np.array([acquisition.diversity_closed_form_1d(m, np.sqrt(v), y)
+                      for m, v in zip(np.asarray(mean[:, 0]), np.asarray(variance[:, 0]))])
+    base = jax.random.normal(jax.random.PRNGKey(0), (200_000, 1))
+    estimate = acquisition.diversity(posterior, x_star, observed, jnp.ones(6, bool), base)
+    np.testing.assert_allclose(estimate, exact, rtol=1e-2)
+    # The closed form itself against direct numerical integration of the density.
+    f = np.linspace(-8, 8, 400_001)
+    density = np.exp(-0.5 * ((f - 0.3) / 0.7) ** 2) / (0.7 * np.sqrt(2 * np.pi))
+    nearest = np.min(np.abs(f[:, None] - y[None]), axis=1)
+    np.testing.assert_allclose(acquisition.diversity_closed_form_1d(0.3, 0.7, y),
+                               np.trapezoid(nearest * density, f), rtol=1e-6)
+
+
+def test_exploration_is_largest_away_from_data():
+    x = np.random.default_rng(5).uniform(0.1, 0.4, size=(8, 2))
+    posterior = gp.fit(x, np.sin(3 * x[:, 0]) + x[:, 1], restarts=2, steps=100)
+    std = acquisition.exploration(posterior, jnp.array([[0.25, 0.25], [0.9, 0.9]]))
+    assert std[1] > 3 * std[0]
+
+
+def test_distances():
+    f, others = jnp.array([3.0]), jnp.array([[-3.0], [0.0]])
+    np.testing.assert_allclose(acquisition.wrapped_angle(f, others),
+                               [2 * np.pi - 6.0, 3.0], rtol=1e-6)
+    np.testing.assert_allclose(acquisition.euclidean(f, others), [6.0, 3.0], rtol=1e-6)
+    # Geodesic: rotations by 0.4 rad and by −0.5 rad about the same axis are 0.9 rad apart; a
+    # rotation by π − 0.1 and one by −(π − 0.1) about the same axis are 0.2 rad apart.
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    np.testing.assert_allclose(
+        acquisition.rotation_geodesic(jnp.asarray(0.4 * axis),
+                                      jnp.asarray([-0.5 * axis, (np.pi - 0.1) * axis])),
+        [0.9, np.pi - 0.5], rtol=1e-6)
+    np.testing.assert_allclose(
+        acquisition.rotation_geodesic(jnp.asarray((np.pi - 0.1) * axis),
+                                      jnp.asarray([-(np.pi - 0.1) * axis])), [0.2], rtol=1e-5)
+    with pytest.raises(ValueError, match="unknown feature distance 'manhattan'"):
+        acquisition.distance_function("manhattan")
+
+
+def test_novelty_reward_matches_eq_3_12():
+    known = jnp.array([[0.0, 0.0], [1.0, 0.0]])
+    rewards = novelty_reward(jnp.array([[0.0, 0.0], [0.0, 0.25], [0.5, 0.3], [5.0, 0.0]]),
+                             known, threshold=0.5)
+    expected = [0.01, 0.5, min(np.hypot(0.5, 0.3) / 0.5, 1.0), 1.0]
+    np.testing.assert_allclose(rewards, expected, rtol=1e-12)
+    assert jax.jit(novelty_reward, static_argnums=2)(jnp.array([0.2, 0.0]), known, 0.5) == 0.4

@@ -1,0 +1,232 @@
+"""BDS optimisers, the search loop (resume, batching, errors) and `takeoff search`."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from agents.cli import main
+from bds.landscapes import LandscapeSettings, StrategyLandscape
+from bds.optimize import direct, maximize_lbfgs
+from bds.search import SearchSettings, search
+
+# Standard global-optimisation test functions (Dixon & Szegő 1978; minima as in Jones et al. 1993).
+
+
+def branin(x):
+    x1, x2 = x[:, 0], x[:, 1]
+    return ((x2 - 5.1 / (4 * np.pi ** 2) * x1 ** 2 + 5 / np.pi * x1 - 6) ** 2
+            + 10 * (1 - 1 / (8 * np.pi)) * np.cos(x1) + 10)
+
+
+HARTMANN_A = np.array([[3, 10, 30], [0.1, 10, 35], [3, 10, 30], [0.1, 10, 35]])
+HARTMANN_C = np.array([1, 1.2, 3, 3.2])
+HARTMANN_P = 1e-4 * np.array([[3689, 1170, 2673], [4699, 4387, 7470], [1091, 8732, 5547],
+                              [381, 5743, 8828]])
+
+
+def hartmann3(x):
+    inner = np.sum(HARTMANN_A * (x[:, None, :] - HARTMANN_P) ** 2, axis=-1)
+    return -np.sum(HARTMANN_C * np.exp(-inner), axis=-1)
+
+
+SHEKEL_A = np.array([[4, 4, 4, 4], [1, 1, 1, 1], [8, 8, 8, 8], [6, 6, 6, 6], [3, 7, 3, 7]], float)
+SHEKEL_C = np.array([0.1, 0.2, 0.2, 0.4, 0.4])
+
+
+def shekel5(x):
+    return -np.sum(1 / (np.sum((x[:, None, :] - SHEKEL_A) ** 2, axis=-1) + SHEKEL_C), axis=-1)
+
+
+@pytest.mark.parametrize("fun, lower, upper, minimum", [
+    (branin, [-5, 0], [10, 15], 0.397887),
+    (hartmann3, [0, 0, 0], [1, 1, 1], -3.86278),
+    (shekel5, [0] * 4, [10] * 4, -10.1532),
+])
+def test_direct_finds_global_minima_of_standard_functions(fun, lower, upper, minimum):
+    result = direct(fun, lower, upper, max_evaluations=300)
+    assert result.evaluations <= 400
+    assert abs(result.value - minimum) <= 1e-4 * abs(minimum), result
+    assert np.all(result.x >= lower) and np.all(result.x <= upper)
+    np.testing.assert_allclose(fun(result.x[None])[0], result.value)
+
+
+def test_direct_rejects_bad_bounds():
+    with pytest.raises(ValueError, match="upper > lower"):
+        direct(branin, [0, 0], [1, 0])
+
+
+def test_lbfgs_finds_a_box_constrained_maximum_on_a_corner_and_inside():
+    def corner(x):             # largest at (1, 0)
+        return x[:, 0] - x[:, 1]
+
+    def inside(x):             # a bump at (0.3, 0.7)
+        return -jnp.sum((x - jnp.array([0.3, 0.7])) ** 2, axis=-1)
+    point, value = maximize_lbfgs(corner, 2, jax.random.PRNGKey(0), starts=4, candidates=64)
+    np.testing.assert_allclose(point, [1.0, 0.0], atol=1e-4)
+    point, value = maximize_lbfgs(inside, 2, jax.random.PRNGKey(0), starts=4, candidates=16)
+    np.testing.assert_allclose(point, [0.3, 0.7], atol=1e-4)
+
+
+FAST = dict(gp_restarts=2, gp_steps=60, direct_evaluations=120, mc_samples=32, lbfgs_starts=4)
+
+
+def landscape_and_counter():
+    landscape = StrategyLandscape(LandscapeSettings(dim=3, strategies=5, seed=1))
+    calls = []
+
+    def g(x):
+        calls.append(np.array(x))
+        return landscape(x)
+    return g, calls
+
+
+def test_search_follows_algorithm_1_and_stays_in_bounds():
+    g, calls = landscape_and_counter()
+    settings = SearchSettings(budget=9, initial=3, explore=2, diverse=1, seed=5, **FAST)
+    result = search(g, [0, 0, 0], [1, 1, 1], settings)
+    assert result.kinds == ["initial"] * 3 + ["explore", "explore", "diverse"] * 2
+    assert len(calls) == 9 and result.x.shape == (9, 3) and result.features.shape == (9, 1)
+    assert np.all(result.x >= 0) and np.all(result.x <= 1)
+    # Exploration picks go where there are no data: away from every earlier point.
+    for i in (3, 4):
+        gaps = np.linalg.norm(result.x[:i] - result.x[i], axis=1)
+        assert gaps.min() > 0.2
+
+
+def test_resume_after_a_crash_evaluates_nothing_twice(tmp_path):
+    log = tmp_path / "search.jsonl"
+    settings = SearchSettings(budget=8, initial=3, explore=1, diverse=1, batch=2, seed=2,
+                              **FAST)
+    landscape = StrategyLandscape(LandscapeSettings(dim=2, strategies=4, seed=3))
+    evaluated, crashed = [], []
+
+    def crashing(x):
+        if len(evaluated) == 5 and not crashed:
+            crashed.append(True)
+            raise RuntimeError("simulated crash")
+        evaluated.append(np.array(x))
+        return landscape(x)
+
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        search(crashing, [0, 0], [2, 1], settings, log=log)
+    # Simulate a write cut off by the crash: a half line at the end of the log.
+    with open(log, "a") as f:
+        f.write('{"event": "evaluation", "ind')
+    first_part = len(evaluated)
+    result = search(crashing, [0, 0], [2, 1], settings, log=log)
+    resumed = evaluated[first_part:]
+    assert first_part == 5 and len(resumed) == 3
+    points = np.array(evaluated)
+    assert len({tuple(p) for p in points}) == 8          # every point evaluated exactly once
+    assert {tuple(p) for p in result.x} == {tuple(p) for p in points}
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    assert sum(r["event"] == "evaluation" for r in logged) == 8
+    # The same search in one go, without a crash, makes the same picks.
+    fresh = search(landscape, [0, 0], [2, 1], settings)
+    np.testing.assert_allclose(fresh.x, result.x, atol=1e-9)
+
+
+def test_batched_search_plans_distinct_points_per_round():
+    g, calls = landscape_and_counter()
+    settings = SearchSettings(budget=8, initial=4, explore=2, diverse=2, batch=4, seed=1,
+                              **FAST)
+    result = search(g, [0, 0, 0], [1, 1, 1], settings, workers=4)
+    second_round = result.x[4:]
+    gaps = np.linalg.norm(second_round[:, None] - second_round[None], axis=-1)
+    assert gaps[np.triu_indices(4, 1)].min() > 0.05     # the fantasies spread the round out
+    assert result.kinds[4:] == ["explore", "explore", "diverse", "diverse"]
+
+
+def test_random_search_uses_the_same_interface():
+    g, _ = landscape_and_counter()
+    result = search(g, [0, 0, 0], [1, 1, 1], SearchSettings(strategy="random", budget=6))
+    assert result.kinds == ["random"] * 6
+
+
+@pytest.mark.parametrize("lower, upper, message", [
+    ([0, 0], [1], "same length"),
+    ([0, 1], [1, 1], "dimension 1 has lower 1.0 and upper 1.0"),
+    ([0, float("nan")], [1, 1], "finite"),
+    ([], [], "non-empty"),
+])
+def test_bad_bounds_give_clear_errors(lower, upper, message):
+    with pytest.raises(ValueError, match=message):
+        search(lambda x: 0.0, lower, upper, SearchSettings(budget=1))
+
+
+def test_bad_settings_and_bad_black_box_outputs():
+    with pytest.raises(ValueError, match="strategy must be one of bds, random"):
+        SearchSettings(strategy="grid")
+    with pytest.raises(ValueError, match="initial .* must be at least batch"):
+        SearchSettings(initial=2, batch=4)
+    with pytest.raises(ValueError, match="evaluation 0 at x = .* returned nan"):
+        search(lambda x: float("nan"), [0], [1], SearchSettings(budget=2))
+
+
+def test_a_log_from_other_settings_is_refused(tmp_path):
+    log = tmp_path / "search.jsonl"
+    search(lambda x: x[0], [0], [1], SearchSettings(strategy="random", budget=2), log=log)
+    with pytest.raises(ValueError, match="different search: its seed is 0, the settings give 1"):
+        search(lambda x: x[0], [0], [1], SearchSettings(strategy="random", budget=2, seed=1),
+               log=log)
+
+
+def write_config(tmp_path, text):
+    path = tmp_path / "search.toml"
+    path.write_text(text)
+    return path
+
+
+def run_cli(argv, capsys):
+    try:
+        code = main(argv)
+    except SystemExit as exit_:
+        code = exit_.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_takeoff_search_runs_resumes_and_summarises(tmp_path, capsys):
+    config = write_config(tmp_path, """
+black_box = "landscape"
+[search]
+strategy = "bds"
+budget = 6
+initial = 3
+gp_restarts = 2
+gp_steps = 50
+direct_evaluations = 100
+[landscape]
+dim = 2
+strategies = 4
+large = 1
+""")
+    out_dir = tmp_path / "run"
+    code, out, _ = run_cli(["search", str(config), "--out", str(out_dir)], capsys)
+    assert code == 0, out
+    assert "[  6/6] explore" in out and "distinct strategies in 6 evaluations" in out
+    assert json.loads((out_dir / "config.json").read_text())["search"]["budget"] == 6
+    # More budget on the command line: the search resumes and adds only the new evaluations.
+    code, out, _ = run_cli(["search", str(config), "--out", str(out_dir),
+                            "--set", "search.budget=8"], capsys)
+    assert code == 0
+    assert "resuming from" in out and "[  7/8]" in out and "[  6/8]" not in out
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[search]\nbudgett = 3\n", "unknown key 'search.budgett'"),
+    ("[search]\nbudget = 'many'\n", "key 'search.budget' must be an int; got 'many'"),
+    ("[search]\nbudget = 0\n", r"\[search\]: budget must be at least 1"),
+    ("black_box = 'jump'\n", "black_box must be one of landscape"),
+    ("[box]\nlower = [0, 0]\nupper = [1, 1]\n", r"\[box\] has 2 dimensions but landscape.dim is 4"),
+    ("[box]\nlower = [0, 0, 0, 1]\nupper = [1, 1, 1, 1]\n", "dimension 3 has lower 1.0"),
+    ("[search\n", "not valid TOML"),
+])
+def test_takeoff_search_config_errors_name_the_key(tmp_path, capsys, text, message):
+    config = write_config(tmp_path, text)
+    with pytest.raises(SystemExit, match=message) as error:
+        main(["search", str(config), "--out", str(tmp_path / "run")])
+    assert str(config) in str(error.value)
