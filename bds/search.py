@@ -119,8 +119,8 @@ def _random_point(settings, index, dim):
     return np.random.default_rng([settings.seed, index]).uniform(size=dim)
 
 
-def _padded(rows, capacity, fill=0.0):
-    out = np.full((capacity, rows.shape[1]), fill)
+def _padded(rows, capacity):
+    out = np.zeros((capacity, rows.shape[1]))
     out[:len(rows)] = rows
     return out
 
@@ -310,6 +310,11 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
                 "seconds": time.perf_counter() - start}
 
     def finish(record):
+        earlier = next(iter(record_log.evaluations.values()), None)
+        if earlier is not None and len(earlier["feature"]) != len(record["feature"]):
+            raise ValueError(f"evaluation {record['index']} at x = {record['x']} returned "
+                             f"{len(record['feature'])} numbers; earlier evaluations returned "
+                             f"{len(earlier['feature'])}")
         record_log.add_evaluation(record)
         if progress is not None:
             progress(record)

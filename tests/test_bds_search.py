@@ -164,6 +164,10 @@ def test_bad_settings_and_bad_black_box_outputs():
         SearchSettings(initial=2, batch=4)
     with pytest.raises(ValueError, match="evaluation 0 at x = .* returned nan"):
         search(lambda x: float("nan"), [0], [1], SearchSettings(budget=2))
+    with pytest.raises(ValueError, match="evaluation 1 .* returned 2 numbers; earlier evaluations "
+                                         "returned 1"):
+        search(lambda x: [1.0] if x[0] < 0.5 else [1.0, 2.0], [0], [1],
+               SearchSettings(strategy="random", budget=3, seed=2))
 
 
 def test_a_log_from_other_settings_is_refused(tmp_path):

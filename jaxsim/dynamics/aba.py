@@ -11,6 +11,14 @@ and passes 2 and 3 then run unchanged with these D_i and u_i (eqs. 2.24–2.29):
     I_iᵃ = I_iᴬ − U_i D_i⁻¹ U_iᵀ,   p_iᵃ = p_iᴬ + I_iᵃ c_i + U_i D_i⁻¹ u_i,   U_i = I_iᴬ S_i
     a′_i = X_i a_λ(i) + c_i,   q̈_i = D_i⁻¹ (u_i − U_iᵀ a′_i),   a_i = a′_i + S_i q̈_i.
 
+Eq. 2.24 is evaluated in the algebraically equal Joseph form
+
+    I_iᵃ = P_iᵀ I_iᴬ P_i + U_i D_i⁻¹ K_i D_i⁻¹ U_iᵀ,   P_i = 1 − S_i D_i⁻¹ U_iᵀ,
+
+which is first-order insensitive to rounding in D_i⁻¹ and symmetric positive semi-definite by
+construction. The plain difference lets rounding grow about tenfold per level of a deep tree (a
+22-link snake lost all accuracy in float64); see docs/benchmarks.md.
+
 The floating root is the base case a_0 = (I_0ᴬ + K_0)⁻¹ (Q_0 − p_0ᴬ), with K_0 = 0 for an
 unactuated root and SPD gains for "hand-of-God" tracking.
 """
@@ -46,7 +54,9 @@ def articulated_body_solve(model: Model, q, qd, joint_force, damping, f_ext=None
         d_inv = inv3(mat_mat(s_t, u_mat) + jnp.diag(damping_i))        # (2.19)
         u = force_i - mat_vec(s_t, pa)                                 # (2.20)
         u_dinv = mat_mat(u_mat, d_inv)
-        ia_art = ia - mat_mat(u_dinv, u_mat.T)                         # (2.24)
+        projector = jnp.eye(6, dtype=ia.dtype) - mat_mat(s_i, u_dinv.T)  # P = 1 − S D⁻¹ Uᵀ
+        ia_art = (mat_mat(projector.T, mat_mat(ia, projector))           # (2.24), Joseph form
+                  + mat_mat(u_dinv * damping_i, u_dinv.T))
         pa_art = pa + mat_vec(ia_art, c_i) + mat_vec(u_dinv, u)        # (2.25)
         x = spatial.plucker(e, r)
         return (u_mat, d_inv, u), (mat_mat(x.T, mat_mat(ia_art, x)),
