@@ -3,7 +3,8 @@
 import argparse
 import os
 import sys
-import tempfile
+
+from agents.atomic import write_text_atomic
 
 
 def _load_character(spec: str):
@@ -52,10 +53,7 @@ def _cmd_mjcf(args):
     if args.out is None:
         print(xml)
         return
-    directory = os.path.dirname(os.path.abspath(args.out))
-    with tempfile.NamedTemporaryFile("w", dir=directory, delete=False, suffix=".tmp") as f:
-        f.write(xml)
-    os.replace(f.name, args.out)
+    write_text_atomic(args.out, xml)
     print(f"wrote {args.out}")
 
 

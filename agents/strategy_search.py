@@ -13,14 +13,13 @@ The run directory holds the resolved config (config.json) and the evaluation log
 
 import dataclasses
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from agents import config as config_io
+from agents.atomic import write_text_atomic
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.search import SearchSettings, check_bounds, search
 
@@ -73,22 +72,14 @@ def black_box(config: SearchConfig):
     return g, label
 
 
-def write_json_atomic(path, value):
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(value, f, indent=2)
-        f.write("\n")
-    os.replace(tmp, path)
-
-
 def run(config_path, out_dir=None, overrides=(), workers=1, echo=print):
     """Load the config, run or resume the search, print progress and a summary; returns the
     SearchResult."""
     config = config_io.load(config_path, SearchConfig, overrides)
     out_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out_dir / "config.json", dataclasses.asdict(config))
+    write_text_atomic(out_dir / "config.json",
+                      json.dumps(dataclasses.asdict(config), indent=2) + "\n")
     g, label = black_box(config)
     settings = config.search
     seen = set()

@@ -11,6 +11,7 @@ from agents.cli import main
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.optimize import direct, maximize_lbfgs
 from bds.search import SearchSettings, search
+from test_cli import run as run_cli
 
 # Standard global-optimisation test functions (Dixon & Szegő 1978; minima as in Jones et al. 1993).
 
@@ -182,15 +183,6 @@ def write_config(tmp_path, text):
     path = tmp_path / "search.toml"
     path.write_text(text)
     return path
-
-
-def run_cli(argv, capsys):
-    try:
-        code = main(argv)
-    except SystemExit as exit_:
-        code = exit_.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_takeoff_search_runs_resumes_and_summarises(tmp_path, capsys):

@@ -1,0 +1,18 @@
+"""Writing files so that a reader never sees half of one: a temporary file in the same folder,
+then an atomic rename over the target."""
+
+import os
+import tempfile
+from pathlib import Path
+
+
+def write_text_atomic(path, text):
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
