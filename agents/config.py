@@ -10,7 +10,6 @@ are applied before checking; the value is read as a TOML value, or as a string w
 
 import dataclasses
 import tomllib
-import types
 import typing
 from pathlib import Path
 
@@ -56,7 +55,7 @@ def build(schema, data, source, prefix=""):
     """Instantiate the dataclass `schema` from the dict `data`, checking keys and types."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: {prefix.rstrip('.') or 'the file'} must be a table")
-    fields = {f.name: f for f in dataclasses.fields(schema)}
+    fields = [f.name for f in dataclasses.fields(schema)]
     hints = typing.get_type_hints(schema)
     unknown = sorted(set(data) - set(fields))
     if unknown:
@@ -76,21 +75,7 @@ def build(schema, data, source, prefix=""):
 def _convert(kind, value, source, key):
     if dataclasses.is_dataclass(kind):
         return build(kind, value, source, key + ".")
-    origin = typing.get_origin(kind)
-    if origin in (typing.Union, types.UnionType):
-        options = typing.get_args(kind)
-        if value is None and type(None) in options:
-            return None
-        errors = []
-        for option in options:
-            if option is type(None):
-                continue
-            try:
-                return _convert(option, value, source, key)
-            except ConfigError as error:
-                errors.append(error)
-        raise errors[0]
-    if origin is tuple:
+    if typing.get_origin(kind) is tuple:
         if not isinstance(value, list):
             raise _type_error(source, key, "a list", value)
         item = typing.get_args(kind)[0]

@@ -20,6 +20,7 @@ import numpy as np
 
 from agents import config as config_io
 from agents.atomic import write_text_atomic
+from bds.gp import to_unit
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.search import SearchSettings, check_bounds, search
 
@@ -59,16 +60,15 @@ class SearchConfig:
 
 
 def black_box(config: SearchConfig):
-    """g(x) for the configured black box, and a function naming the strategy of a point (or
-    None where the black box has no known labels)."""
+    """g(x) for the configured black box, and the function naming the strategy of a point."""
     landscape = StrategyLandscape(config.landscape)
     lower, upper = config.bounds()
 
     def g(x):
-        return landscape((np.asarray(x) - lower) / (upper - lower))
+        return landscape(to_unit(np.asarray(x), lower, upper))
 
     def label(x):
-        return int(landscape.label((np.asarray(x) - lower) / (upper - lower)))
+        return int(landscape.label(to_unit(np.asarray(x), lower, upper)))
     return g, label
 
 

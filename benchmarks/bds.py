@@ -31,6 +31,7 @@ import numpy as np
 # This script's own name is `bds`: drop its folder from the import path so `bds` is the package.
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
+from agents.atomic import write_text_atomic  # noqa: E402
 from bds.landscapes import LandscapeSettings, StrategyLandscape  # noqa: E402
 from bds.search import SearchSettings, plan_round, search  # noqa: E402
 
@@ -119,12 +120,10 @@ def main(argv=None):
                      f"(first call, with compilation: {t['first_call_s']:.2f} s)")
     print("\n".join(lines))
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.json.with_name(args.json.name + ".tmp")
-    tmp.write_text(json.dumps({"command": " ".join(sys.argv), "landscapes": args.landscapes,
-                               "summary": {m: {str(c): v for c, v in t.items()}
-                                           for m, t in table.items()},
-                               "decisions": decisions, "rows": rows}, indent=2) + "\n")
-    tmp.replace(args.json)
+    record = {"command": " ".join(sys.argv), "landscapes": args.landscapes,
+              "summary": {m: {str(c): v for c, v in t.items()} for m, t in table.items()},
+              "decisions": decisions, "rows": rows}
+    write_text_atomic(args.json, json.dumps(record, indent=2) + "\n")
 
 
 if __name__ == "__main__":
