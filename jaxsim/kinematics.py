@@ -155,3 +155,32 @@ def qd_to_qdot(model: Model, q, qd):
         qdot = qdot.at[0:3].set(rot @ qd[3:6])
         qdot = qdot.at[3:7].set(quat_rate(q[3:7], qd[0:3]))
     return qdot
+
+
+def integrate(model: Model, q, qd, dt):
+    """Advance q by the velocity qd over dt on the configuration manifold.
+
+    Quaternions are multiplied by the exponential of their body-frame rotation, q ⊗ exp(ω Δt),
+    and renormalised; the root position moves by R v Δt (R the root's current orientation);
+    revolute angles move by θ̇ Δt. Used with the new velocity, this is semi-implicit Euler.
+    """
+    topo = model.topology
+    q_next = q
+    rev = topo.links_of_type("revolute")
+    if len(rev):
+        q_next = q_next.at[topo.q_offsets[rev]].add(dt * qd[topo.dof_offsets[rev]])
+
+    def rotate(quat, omega):
+        turned = rotations.quat_multiply(quat, rotations.rotvec_to_quat(omega * dt))
+        return rotations.quat_normalize(turned)
+
+    sph = topo.links_of_type("spherical")
+    if len(sph):
+        qi = topo.q_offsets[sph][:, None] + np.arange(4)
+        vi = topo.dof_offsets[sph][:, None] + np.arange(3)
+        q_next = q_next.at[qi].set(rotate(q[qi], qd[vi]))
+    if topo.floating:
+        rot = rotations.quat_to_matrix(rotations.quat_normalize(q[3:7]))
+        q_next = q_next.at[0:3].add(dt * (rot @ qd[3:6]))
+        q_next = q_next.at[3:7].set(rotate(q[3:7], qd[0:3]))
+    return q_next

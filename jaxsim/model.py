@@ -230,13 +230,24 @@ jax.tree_util.register_dataclass(Model, data_fields=_MODEL_DATA_FIELDS, meta_fie
 
 @dataclasses.dataclass(frozen=True)
 class State:
-    """Generalised position q (nq) and velocity qd (nv) of one character."""
+    """Generalised position q (nq) and velocity qd (nv) of one character.
+
+    A state that steps through a world with contacts also carries the contact memory (see
+    `jaxsim.simulation.init_state`): `contact_stretch` (C, 3), the friction springs' stretch, and
+    `touching` (n_links, n_objects), which link touched which object in the last step.
+    """
 
     q: jax.Array
     qd: jax.Array
+    contact_stretch: jax.Array | None = None
+    touching: jax.Array | None = None
+
+    def replace(self, **changes) -> "State":
+        return dataclasses.replace(self, **changes)
 
 
-jax.tree_util.register_dataclass(State, data_fields=["q", "qd"], meta_fields=[])
+jax.tree_util.register_dataclass(State, data_fields=["q", "qd", "contact_stretch", "touching"],
+                                 meta_fields=[])
 
 
 def rest_pose(model: Model, root_height: float = 0.0) -> jax.Array:

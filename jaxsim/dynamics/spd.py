@@ -1,9 +1,12 @@
 """Stable-PD control: the SPD force and the four solvers of thesis eq. 2.7.
 
 SPD (thesis eq. 2.6) computes the PD torque from the next step's predicted state,
-    τ = −K_p (q + Δt q̇ − q̄) − K_d (q̇ + Δt q̈),
+    τ = −K_p (q + Δt q̇ − q̄) − K_d (q̇ + Δt q̈ − q̄̇),
 so the equations of motion M q̈ + C = τ become (eq. 2.7)
-    (M + K_d Δt) q̈ = −C − K_p (q + Δt q̇ − q̄) − K_d q̇ = Q − C.
+    (M + K_d Δt) q̈ = −C − K_p (q + Δt q̇ − q̄) − K_d (q̇ − q̄̇) = Q − C.
+The target velocity q̄̇ is zero in the thesis's eq. 2.6 (a pose target only); tracking a moving
+reference passes the reference's velocity (as in Tan et al.'s original SPD), which removes the
+lag K_d q̄̇ / K_p that a pose-only target leaves. It changes Q only, so MABA is unaffected.
 Solvers, selected by name:
     dense   CRBA for M, RNEA for C, Cholesky of M + K_d Δt           O(n³)
     sparse  the same matrix factorised by branch-induced sparse LTDL   O(n d²)
@@ -55,26 +58,36 @@ def pose_error(model: Model, q, target):
     return err
 
 
-def spd_force(model: Model, q, qd, target, dt):
-    """Q = −K_p (q ⊖ q̄ + Δt q̇) − K_d q̇ (thesis eq. 2.20, per DoF)."""
-    return -model.kp * (pose_error(model, q, target) + dt * qd) - model.kd * qd
+def _velocity_error(qd, target_velocity):
+    return qd if target_velocity is None else qd - target_velocity
 
 
-def solve_spd(model: Model, q, qd, target, dt, method="maba", f_ext=None, gravity=None):
-    """Accelerations and joint torques of SPD control towards `target` (a pose, nq), eq. 2.7.
+def spd_force(model: Model, q, qd, target, dt, target_velocity=None):
+    """Q = −K_p (q ⊖ q̄ + Δt q̇) − K_d (q̇ − q̄̇) (thesis eq. 2.20, per DoF; q̄̇ = 0 by default)."""
+    return (-model.kp * (pose_error(model, q, target) + dt * qd)
+            - model.kd * _velocity_error(qd, target_velocity))
 
-    `f_ext` (n_links, 6): spatial forces on the links in link coordinates; `gravity`: 3-vector.
+
+def solve_spd(model: Model, q, qd, target, dt, method="maba", f_ext=None, gravity=None,
+              extra_torque=None, target_velocity=None):
+    """Accelerations and motor torques of SPD control towards `target` (a pose, nq), eq. 2.7.
+
+    `f_ext` (n_links, 6): spatial forces on the links in link coordinates; `gravity`: 3-vector;
+    `extra_torque` (nv): joint torques applied as given (joint-limit penalties), which are not
+    part of the returned motor torques τ = Q − K_d Δt q̈ (eq. 2.17); `target_velocity` (nv): q̄̇.
     """
+    extra = jnp.zeros_like(qd) if extra_torque is None else extra_torque
     if method == "pd":
-        tau = -model.kp * pose_error(model, q, target) - model.kd * qd
-        return aba(model, q, qd, tau, f_ext, gravity), tau
-    force = spd_force(model, q, qd, target, dt)
+        tau = (-model.kp * pose_error(model, q, target)
+               - model.kd * _velocity_error(qd, target_velocity))
+        return aba(model, q, qd, tau + extra, f_ext, gravity), tau
+    force = spd_force(model, q, qd, target, dt, target_velocity)
     damping = model.kd * dt
     if method == "maba":
-        qdd = articulated_body_solve(model, q, qd, force, damping, f_ext, gravity)
+        qdd = articulated_body_solve(model, q, qd, force + extra, damping, f_ext, gravity)
     elif method in ("dense", "sparse"):
         h = mass_matrix(model, q) + jnp.diag(damping)
-        rhs = force - bias_torques(model, q, qd, f_ext, gravity)
+        rhs = force + extra - bias_torques(model, q, qd, f_ext, gravity)
         if method == "dense":
             qdd = jsl.cho_solve(jsl.cho_factor(h, lower=True), rhs)
         else:

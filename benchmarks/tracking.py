@@ -1,0 +1,320 @@
+"""The thesis's chapter-2 experiments on our simulator: SPD tracking stability and speed.
+
+Subcommands (each prints a markdown table and writes JSON to benchmarks/results/):
+
+  stability  Figures 2.4/2.5 analogue. Hand-of-God SPD tracking (jaxsim.tracking) of the humanoid
+             *run* and the dog *canter* for --seconds, at Δt ∈ {1/600 … 1/30}, with `dense` and
+             `maba`, in float32 and float64. Error: mean end-effector-to-root vector error (right
+             ankle; the dog's right front toe, `right_finger`); "diverged" when it is not finite
+             or above 1 m. No ground: the root is held by its SPD. Writes a PNG plot per character.
+  speed      Tables 2.2/2.3 analogue. Simulated steps per second of the tracking task (one
+             `simulate` call of --steps steps, median of repeats, compile time apart) for each
+             method, character and batch size, and the share of the step spent in the SPD solve
+             (time of a batched `solve_spd` over time of a batched `step`, same inputs).
+  contacts   Humanoid standing on the ground at 600 Hz (contacts, joint limits, maba):
+             character-steps per second and compile time at each batch size.
+  filmstrip  The humanoid tracking the cartwheel clip, drawn as a filmstrip PNG.
+
+Run:  python benchmarks/tracking.py stability
+      python benchmarks/tracking.py speed --batch 1 --methods dense sparse maba
+      python benchmarks/tracking.py contacts --batch 1 256 4096
+      python benchmarks/tracking.py filmstrip --out docs/cartwheel_tracking.png
+"""
+
+import argparse
+import json
+import os
+import shlex
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsim import characters, motion, simulation, tracking
+from jaxsim.dynamics import solve_spd
+from jaxsim.world import make_world
+from spd import machine_info, markdown_table, write_atomic
+
+RESULTS = Path(__file__).resolve().parent / "results"
+STEPS = {"600": 1 / 600, "300": 1 / 300, "240": 1 / 240, "120": 1 / 120, "60": 1 / 60,
+         "30": 1 / 30}
+DIVERGED_M = 1.0
+
+
+def data_dir():
+    default = Path(__file__).resolve().parents[2] / "shared" / "data"
+    path = Path(os.environ.get("TAKEOFF_DATA", default))
+    if not (path / "deepmimic").is_dir():
+        sys.exit(f"reference data not found in {path}; set TAKEOFF_DATA")
+    return path / "deepmimic"
+
+
+def deepmimic(name, dtype):
+    dm = data_dir()
+    model = characters.load_deepmimic(dm / f"characters/{name}.txt",
+                                      dm / f"controllers/{name}_ctrl.txt", dtype=dtype)
+    return tracking.tracking_model(model)
+
+
+# Rows of the speed table: name → (character, clip, Δt). Snakes 1–3 are snake(10/22/63).
+ROWS = {
+    "humanoid walk": ("humanoid3d", "humanoid3d_walk", 1 / 30),
+    "humanoid run": ("humanoid3d", "humanoid3d_run", 1 / 30),
+    "humanoid cartwheel": ("humanoid3d", "humanoid3d_cartwheel", 1 / 30),
+    "humanoid backflip": ("humanoid3d", "humanoid3d_backflip", 1 / 30),
+    "dog pace": ("dog3d", "dog3d_pace", 1 / 240),
+    "dog trot": ("dog3d", "dog3d_trot", 1 / 240),
+    "dog canter": ("dog3d", "dog3d_canter", 1 / 240),
+    "snake1 slither": (10, None, 1 / 30),
+    "snake2 slither": (22, None, 1 / 30),
+    "snake3 slither": (63, None, 1 / 30),
+}
+
+
+def task(row, dtype):
+    """(tracking model, clip, Δt) of a speed-table row."""
+    character, clip_name, dt = ROWS[row]
+    if isinstance(character, int):
+        model = tracking.tracking_model(characters.snake(character, dtype=dtype))
+        return model, motion.slither_clip(model), dt
+    model = deepmimic(character, dtype)
+    return model, motion.load_motion(data_dir() / f"motions/{clip_name}.txt", model), dt
+
+
+# ---------------------------------------------------------------------------------------------
+# stability
+
+
+def stability(args):
+    world64 = make_world(ground=False, joint_limits=False, dtype=jnp.float64)
+    cases = [("humanoid run", "humanoid3d", "humanoid3d_run", "right_ankle"),
+             ("dog canter", "dog3d", "dog3d_canter", "right_finger")]
+    rows = []
+    for label, character, clip_name, effector in cases:
+        for dtype in (jnp.float32, jnp.float64):
+            model = deepmimic(character, dtype)
+            clip = motion.load_motion(data_dir() / f"motions/{clip_name}.txt", model)
+            world = world64.astype(dtype)
+            for rate, dt in STEPS.items():
+                n = int(round(args.seconds / dt))
+                for method in ("dense", "maba"):
+                    start = time.perf_counter()
+                    traj = tracking.track(model, world, clip, dt, n, method)
+                    error = np.asarray(tracking.end_effector_error(model, clip, traj.q, dt,
+                                                                   effector))
+                    finite = bool(np.isfinite(error).all())
+                    mean = float(error.mean()) if finite else float("nan")
+                    diverged = not finite or mean > DIVERGED_M
+                    rows.append({"case": label, "dtype": jnp.dtype(dtype).name, "rate_hz": rate,
+                                 "dt": dt, "method": method, "mean_error_m": mean,
+                                 "max_error_m": float(error.max()) if finite else float("nan"),
+                                 "diverged": diverged})
+                    print(f"{label} {jnp.dtype(dtype).name} 1/{rate} {method}: "
+                          f"{'diverged' if diverged else f'{mean * 100:.2f} cm'} "
+                          f"({time.perf_counter() - start:.1f} s)", file=sys.stderr, flush=True)
+    for label, *_ in cases:
+        plot_stability(rows, label, args.plots / f"stability_{label.replace(' ', '_')}.png")
+    table = markdown_table(
+        ["case", "dtype", "method", *[f"1/{r} s" for r in STEPS]],
+        [[c, d, m, *(_error_cell(rows, c, d, m, r) for r in STEPS)]
+         for c in dict.fromkeys(r["case"] for r in rows) for d in ("float32", "float64")
+         for m in ("dense", "maba")])
+    return rows, f"Mean end-effector-to-root error (cm) over {args.seconds} s\n\n{table}\n"
+
+
+def _error_cell(rows, case, dtype, method, rate):
+    row = next(r for r in rows if (r["case"], r["dtype"], r["method"], r["rate_hz"]) ==
+               (case, dtype, method, rate))
+    return "diverged" if row["diverged"] else f"{100 * row['mean_error_m']:.2f}"
+
+
+def plot_stability(rows, case, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for dtype, style in (("float32", "--"), ("float64", "-")):
+        for method, marker in (("dense", "s"), ("maba", "o")):
+            picked = [r for r in rows if (r["case"], r["dtype"], r["method"]) ==
+                      (case, dtype, method)]
+            dts = [r["dt"] for r in picked]
+            errors = [DIVERGED_M * 2 if r["diverged"] else r["mean_error_m"] for r in picked]
+            ax.plot(dts, errors, style, marker=marker, label=f"{method} {dtype}")
+    ax.axhline(DIVERGED_M, color="grey", lw=0.8)
+    ax.text(1 / 600, DIVERGED_M * 1.1, "diverged (plotted at 2 m)", fontsize=7)
+    ax.set_xscale("log"), ax.set_yscale("log")
+    ax.set_xlabel("time step Δt (s)"), ax.set_ylabel("mean end-effector error (m)")
+    ax.set_title(f"SPD tracking: {case}")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    print(f"wrote {path}", file=sys.stderr)
+
+
+# ---------------------------------------------------------------------------------------------
+# speed
+
+
+def _timed(fn, args, repeats):
+    """Compile seconds and the median of `repeats` run times of jit(fn)(*args)."""
+    jitted = jax.jit(fn)
+    start = time.perf_counter()
+    compiled = jitted.lower(*args).compile()
+    compile_s = time.perf_counter() - start
+    jax.block_until_ready(compiled(*args))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - start)
+    return compile_s, statistics.median(times)
+
+
+def speed(args):
+    world = make_world(ground=False, joint_limits=False, dtype=jnp.float32)
+    rows = []
+    for row in args.rows:
+        model, clip, dt = task(row, jnp.float32)
+        poses, velocities = tracking.reference_targets(clip, dt, args.steps)
+        for batch in args.batch:
+            start_state = tracking.initial_state(model, world, clip)
+            states = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape),
+                                  start_state)
+            for method in args.methods:
+                if batch > 1 and method == "sparse" and not args.sparse_batched:
+                    continue
+
+                def rollout(states, poses, velocities, method=method):
+                    run = lambda s: simulation.simulate(  # noqa: E731
+                        model, world, s, poses, dt, method, target_velocities=velocities)[0]
+                    return jax.vmap(run)(states)
+
+                def one_step(states, method=method):
+                    return jax.vmap(lambda s: simulation.step(
+                        model, world, s, poses[0], dt, method, velocities[0]))(states)
+
+                def spd_only(states, method=method):
+                    return jax.vmap(lambda s: solve_spd(
+                        model, s.q, s.qd, poses[0], dt, method, None, world.gravity, None,
+                        velocities[0]))(states)
+
+                compile_s, run_s = _timed(rollout, (states, poses, velocities), args.repeats)
+                _, step_s = _timed(one_step, (states,), args.repeats)
+                _, spd_s = _timed(spd_only, (states,), args.repeats)
+                rows.append({"row": row, "dof": model.nv, "dt": dt, "batch": batch,
+                             "method": method, "steps": args.steps, "compile_s": compile_s,
+                             "seconds": run_s, "steps_per_s": batch * args.steps / run_s,
+                             "spd_share": spd_s / step_s})
+                print(f"{row} batch {batch} {method}: {rows[-1]['steps_per_s']:.0f} steps/s, "
+                      f"SPD {100 * rows[-1]['spd_share']:.0f}% of a step, "
+                      f"compile {compile_s:.1f} s", file=sys.stderr, flush=True)
+    table = markdown_table(
+        ["task", "DoF", "Δt", "batch", "method", "steps/s", "SPD share", "compile s"],
+        [[r["row"], r["dof"], f"1/{round(1 / r['dt'])}", r["batch"], r["method"],
+          f"{r['steps_per_s']:,.0f}", f"{100 * r['spd_share']:.0f}%", f"{r['compile_s']:.1f}"]
+         for r in rows])
+    return rows, f"Tracking steps per second (all characters together), float32\n\n{table}\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# contacts
+
+
+def contacts(args):
+    model = characters.humanoid()
+    internal = np.arange(model.nv) >= 6
+    model = model.replace(kp=jnp.where(internal, 75000.0, 0.0).astype(model.kp.dtype),
+                          kd=jnp.where(internal, 4000.0, 0.0).astype(model.kd.dtype))
+    world = make_world()
+    low, _ = characters.vertical_extent(model)
+    from jaxsim.model import rest_pose
+    q0 = rest_pose(model, -low + 0.05)                     # dropped from 5 cm: falls, lands
+    targets = jnp.tile(q0, (args.steps, 1))
+    rows = []
+    for batch in args.batch:
+        state = simulation.init_state(model, world, q0)
+        states = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), state)
+
+        def rollout(states):
+            return jax.vmap(lambda s: simulation.simulate(model, world, s, targets,
+                                                          1 / 600)[0])(states)
+
+        compile_s, run_s = _timed(rollout, (states,), args.repeats)
+        rows.append({"batch": batch, "steps": args.steps, "compile_s": compile_s,
+                     "seconds": run_s, "steps_per_s": batch * args.steps / run_s})
+        print(f"contacts batch {batch}: {rows[-1]['steps_per_s']:.0f} steps/s, "
+              f"compile {compile_s:.1f} s", file=sys.stderr, flush=True)
+    table = markdown_table(["batch", "character-steps/s", "compile s"],
+                           [[r["batch"], f"{r['steps_per_s']:,.0f}", f"{r['compile_s']:.1f}"]
+                            for r in rows])
+    return rows, ("Humanoid on the ground, 600 Hz, maba, contacts and joint limits, float32\n\n"
+                  f"{table}\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# filmstrip
+
+
+def filmstrip(args):
+    from jaxsim import render
+
+    model = deepmimic("humanoid3d", jnp.float32)
+    clip = motion.load_motion(data_dir() / "motions/humanoid3d_cartwheel.txt", model)
+    world = make_world(joint_limits=False)
+    dt = 1 / 600
+    n = int(float(clip.duration) / dt)
+    traj = tracking.track(model, world, clip, dt, n, "maba")
+    error = tracking.end_effector_error(model, clip, traj.q, dt, "right_ankle")
+    render.filmstrip(model, traj.q, args.out, world=world, n_panels=8, azimuth=90,
+                     times=dt * np.arange(1, n + 1),
+                     title=f"SPD tracking of DeepMimic's cartwheel (maba, 600 Hz, on the ground; "
+                           f"mean ankle error {100 * float(error.mean()):.1f} cm)")
+    print(f"wrote {args.out}", file=sys.stderr)
+    return [{"mean_error_m": float(error.mean())}], ""
+
+
+def parse_args(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="experiment", required=True)
+    p = sub.add_parser("stability")
+    p.add_argument("--seconds", type=float, default=2.0)
+    p.add_argument("--plots", type=Path, default=Path("docs"))
+    p = sub.add_parser("speed")
+    p.add_argument("--rows", nargs="+", choices=list(ROWS), default=list(ROWS))
+    p.add_argument("--methods", nargs="+", choices=("dense", "sparse", "maba"),
+                   default=["dense", "sparse", "maba"])
+    p.add_argument("--batch", nargs="+", type=int, default=[1, 4096])
+    p.add_argument("--steps", type=int, default=30)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--sparse-batched", action="store_true",
+                   help="also time `sparse` above batch 1 (very slow: a scan over DoFs)")
+    p = sub.add_parser("contacts")
+    p.add_argument("--batch", nargs="+", type=int, default=[1, 256, 4096])
+    p.add_argument("--steps", type=int, default=60)
+    p.add_argument("--repeats", type=int, default=5)
+    p = sub.add_parser("filmstrip")
+    p.add_argument("--out", type=Path, default=Path("docs/cartwheel_tracking.png"))
+    return parser.parse_args(argv)
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    rows, table = {"stability": stability, "speed": speed, "contacts": contacts,
+                   "filmstrip": filmstrip}[args.experiment](args)
+    print(table)
+    record = {"command": shlex.join([sys.executable, *sys.argv]), "machine": machine_info(),
+              "results": rows}
+    path = RESULTS / f"tracking_{args.experiment}.json"
+    write_atomic(path, json.dumps(record, indent=2) + "\n")
+    print(f"wrote {path}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,119 @@
+"""The simulation step and multi-step simulation (DESIGN.md, "Simulation step").
+
+One step: collisions → contact forces → joint-limit torques → SPD solve (thesis eq. 2.7, by the
+chosen method) → torque limits (clip, and re-solve with ABA where they bind) → semi-implicit Euler
+(q̇ ← q̇ + Δt q̈, then q advanced with the new velocity, quaternions on the manifold).
+
+All functions act on one character; batch with `jax.vmap` (or `simulate_batch`).
+"""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsim import contact, kinematics, limits
+from jaxsim.dynamics import aba, solve_spd
+from jaxsim.model import Model, State
+from jaxsim.world import World
+
+
+class SimulationError(ValueError):
+    """A state cannot be simulated (non-finite numbers); the message names the joints."""
+
+
+def init_state(model: Model, world: World, q, qd=None) -> State:
+    """A state ready to step in `world`: friction springs unstretched, no touches recorded yet.
+    `qd` defaults to rest."""
+    q = jnp.asarray(q, model.mass.dtype)
+    qd = jnp.zeros(model.nv, q.dtype) if qd is None else jnp.asarray(qd, q.dtype)
+    n_contacts = len(contact.contact_layout(model, world))
+    return State(q, qd, jnp.zeros((n_contacts, 3), q.dtype),
+                 jnp.zeros((model.n_links, len(world.object_names)), bool))
+
+
+def is_finite(state: State):
+    """True when q and q̇ hold only finite numbers (jittable: a flag to check after a rollout)."""
+    return jnp.all(jnp.isfinite(state.q)) & jnp.all(jnp.isfinite(state.qd))
+
+
+def _owners(offsets, index):
+    return np.searchsorted(offsets, index, side="right") - 1
+
+
+def check_state(model: Model, state: State, where: str = "state"):
+    """Raise `SimulationError` naming the joints whose q or q̇ entries are not finite."""
+    topo = model.topology
+    problems = []
+    for field, values, offsets in (("q", state.q, topo.q_offsets),
+                                   ("qd", state.qd, topo.dof_offsets)):
+        values = np.asarray(values)
+        bad = np.flatnonzero(~np.isfinite(values.reshape(-1, values.shape[-1])).all(0))
+        if len(bad):
+            joints = sorted({topo.names[i] for i in _owners(offsets, bad)},
+                            key=topo.names.index)
+            problems.append(f"{field}[{', '.join(map(str, bad))}] (joints {', '.join(joints)})")
+    if problems:
+        raise SimulationError(f"{where}: non-finite values in " + "; ".join(problems))
+
+
+def step(model: Model, world: World, state: State, target, dt, method: str = "maba",
+         target_velocity=None) -> State:
+    """Advance one character by dt under SPD control towards the pose `target` (nq) and, if
+    given, the velocity `target_velocity` (nv; zero otherwise, as in thesis eq. 2.6).
+
+    The state must carry contact memory when the world has contacts (`init_state`). Called
+    outside `jit` the input is checked and a non-finite state raises `SimulationError`; inside
+    `jit`, check `is_finite` on the result.
+    """
+    if not isinstance(state.q, jax.core.Tracer):
+        check_state(model, state)
+    q, qd = state.q, state.qd
+    f_ext, stretch, touching = None, state.contact_stretch, state.touching
+    if world.has_contacts:
+        if stretch is None:
+            raise SimulationError("the state has no contact memory; make it with "
+                                  "jaxsim.simulation.init_state(model, world, q, qd)")
+        rot_w, pos_w = kinematics.forward_kinematics(model, q)
+        v_body = kinematics.link_velocities(model, q, qd)
+        f_ext, stretch, touching = contact.contact_forces(model, world, rot_w, pos_w, v_body,
+                                                          stretch, dt)
+    extra = limits.joint_limit_torques(model, world, q, qd) if world.joint_limits else None
+    qdd, tau = solve_spd(model, q, qd, target, dt, method, f_ext, world.gravity, extra,
+                         target_velocity)
+    if world.torque_limits:
+        clipped, bound = limits.clip_torques(model, tau)
+        applied = clipped if extra is None else clipped + extra
+        qdd = jax.lax.cond(bound, lambda: aba(model, q, qd, applied, f_ext, world.gravity),
+                           lambda: qdd)
+    qd_next = qd + dt * qdd
+    return State(kinematics.integrate(model, q, qd_next, dt), qd_next, stretch, touching)
+
+
+@functools.partial(jax.jit, static_argnames=("method", "substeps"))
+def simulate(model: Model, world: World, state: State, targets, dt, method: str = "maba",
+             substeps: int = 1, target_velocities=None):
+    """Run len(targets) control steps, each holding its target pose (and target velocity, if
+    `target_velocities` (T, nv) is given) for `substeps` steps of dt.
+
+    Returns (final state, the states after each control step), the latter with a leading time
+    axis. A `lax.scan` over control steps around a `lax.scan` over substeps.
+    """
+    def control_step(s, control):
+        target, target_velocity = control
+        s, _ = jax.lax.scan(
+            lambda c, _: (step(model, world, c, target, dt, method, target_velocity), None),
+            s, None, length=substeps)
+        return s, s
+
+    return jax.lax.scan(control_step, state, (targets, target_velocities))
+
+
+@functools.partial(jax.jit, static_argnames=("method", "substeps"))
+def simulate_batch(model: Model, world: World, states: State, targets, dt, method: str = "maba",
+                   substeps: int = 1):
+    """`simulate` for a batch of characters: states with a leading batch axis, targets
+    (batch, T, nq); the same model and world for all."""
+    run = functools.partial(simulate, method=method, substeps=substeps)
+    return jax.vmap(run, in_axes=(None, None, 0, 0, None))(model, world, states, targets, dt)
