@@ -9,11 +9,12 @@ Subcommands (each prints a markdown table and writes JSON to benchmarks/results/
              or above 1 m. No ground: the root is held by its SPD. Writes a PNG plot per character.
   speed      Tables 2.2/2.3 analogue. Simulated steps per second of the tracking task (one
              `simulate` call of --steps steps, median of repeats, compile time apart) for each
-             method, character and batch size, and the share of the step spent in the SPD solve
-             (time of a batched `solve_spd` over time of a batched `step`, same inputs).
+             method, character and batch size, and the share of the step spent in the SPD solve:
+             1 − (time of the same scan with the solve taken out) / (time of the rollout).
   contacts   Humanoid standing on the ground at 600 Hz (contacts, joint limits, maba):
              character-steps per second and compile time at each batch size.
   filmstrip  The humanoid tracking the cartwheel clip, drawn as a filmstrip PNG.
+  plot       Redraw the stability plots from the last stability JSON.
 
 Run:  python benchmarks/tracking.py stability
       python benchmarks/tracking.py speed --batch 1 --methods dense sparse maba
@@ -34,10 +35,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsim import characters, motion, simulation, tracking
-from jaxsim.dynamics import solve_spd
-from jaxsim.world import make_world
-from spd import machine_info, markdown_table, write_atomic
+jax.config.update("jax_enable_x64", True)      # float64 runs; every model/world is cast explicitly
+
+from jaxsim import characters, kinematics, motion, simulation, tracking  # noqa: E402
+from jaxsim.world import make_world  # noqa: E402
+from spd import machine_info, markdown_table, write_atomic  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = {"600": 1 / 600, "300": 1 / 300, "240": 1 / 240, "120": 1 / 120, "60": 1 / 60,
@@ -132,6 +134,13 @@ def _error_cell(rows, case, dtype, method, rate):
     return "diverged" if row["diverged"] else f"{100 * row['mean_error_m']:.2f}"
 
 
+def replot(args):
+    rows = json.loads((RESULTS / "tracking_stability.json").read_text())["results"]
+    for case in dict.fromkeys(r["case"] for r in rows):
+        plot_stability(rows, case, args.plots / f"stability_{case.replace(' ', '_')}.png")
+    sys.exit(0)
+
+
 def plot_stability(rows, case, path):
     import matplotlib
     matplotlib.use("Agg")
@@ -148,6 +157,9 @@ def plot_stability(rows, case, path):
     ax.axhline(DIVERGED_M, color="grey", lw=0.8)
     ax.text(1 / 600, DIVERGED_M * 1.1, "diverged (plotted at 2 m)", fontsize=7)
     ax.set_xscale("log"), ax.set_yscale("log")
+    ax.set_xticks([1 / float(r) for r in STEPS], [f"1/{r}" for r in STEPS])
+    ax.minorticks_off()
+    ax.tick_params(axis="x", labelrotation=45)
     ax.set_xlabel("time step Δt (s)"), ax.set_ylabel("mean end-effector error (m)")
     ax.set_title(f"SPD tracking: {case}")
     ax.legend(fontsize=7)
@@ -160,6 +172,18 @@ def plot_stability(rows, case, path):
 
 # ---------------------------------------------------------------------------------------------
 # speed
+
+
+def _batched(state, batch):
+    """`batch` copies of a state, split over the host devices when there are several (run with
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 to use both cores; DESIGN.md)."""
+    states = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), state)
+    n = jax.device_count()
+    if n == 1 or batch % n:
+        return states
+    mesh = jax.make_mesh((n,), ("batch",), axis_types=(jax.sharding.AxisType.Auto,))
+    return jax.device_put(states, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(
+        "batch")))
 
 
 def _timed(fn, args, repeats):
@@ -184,9 +208,7 @@ def speed(args):
         model, clip, dt = task(row, jnp.float32)
         poses, velocities = tracking.reference_targets(clip, dt, args.steps)
         for batch in args.batch:
-            start_state = tracking.initial_state(model, world, clip)
-            states = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape),
-                                  start_state)
+            states = _batched(tracking.initial_state(model, world, clip), batch)
             for method in args.methods:
                 if batch > 1 and method == "sparse" and not args.sparse_batched:
                     continue
@@ -196,22 +218,20 @@ def speed(args):
                         model, world, s, poses, dt, method, target_velocities=velocities)[0]
                     return jax.vmap(run)(states)
 
-                def one_step(states, method=method):
-                    return jax.vmap(lambda s: simulation.step(
-                        model, world, s, poses[0], dt, method, velocities[0]))(states)
-
-                def spd_only(states, method=method):
-                    return jax.vmap(lambda s: solve_spd(
-                        model, s.q, s.qd, poses[0], dt, method, None, world.gravity, None,
-                        velocities[0]))(states)
+                def without_spd(states):
+                    # The same scan with the SPD solve taken out (zero acceleration): what is
+                    # left of a tracking step is the integration.
+                    def body(s, _):
+                        return s.replace(q=kinematics.integrate(model, s.q, s.qd, dt)), None
+                    run = lambda s: jax.lax.scan(body, s, poses)[0]  # noqa: E731
+                    return jax.vmap(run)(states)
 
                 compile_s, run_s = _timed(rollout, (states, poses, velocities), args.repeats)
-                _, step_s = _timed(one_step, (states,), args.repeats)
-                _, spd_s = _timed(spd_only, (states,), args.repeats)
+                _, other_s = _timed(without_spd, (states,), args.repeats)
                 rows.append({"row": row, "dof": model.nv, "dt": dt, "batch": batch,
                              "method": method, "steps": args.steps, "compile_s": compile_s,
                              "seconds": run_s, "steps_per_s": batch * args.steps / run_s,
-                             "spd_share": spd_s / step_s})
+                             "spd_share": 1.0 - other_s / run_s})
                 print(f"{row} batch {batch} {method}: {rows[-1]['steps_per_s']:.0f} steps/s, "
                       f"SPD {100 * rows[-1]['spd_share']:.0f}% of a step, "
                       f"compile {compile_s:.1f} s", file=sys.stderr, flush=True)
@@ -239,21 +259,21 @@ def contacts(args):
     targets = jnp.tile(q0, (args.steps, 1))
     rows = []
     for batch in args.batch:
-        state = simulation.init_state(model, world, q0)
-        states = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), state)
+        states = _batched(simulation.init_state(model, world, q0), batch)
 
         def rollout(states):
             return jax.vmap(lambda s: simulation.simulate(model, world, s, targets,
                                                           1 / 600)[0])(states)
 
         compile_s, run_s = _timed(rollout, (states,), args.repeats)
-        rows.append({"batch": batch, "steps": args.steps, "compile_s": compile_s,
+        rows.append({"batch": batch, "devices": jax.device_count(), "steps": args.steps,
+                     "compile_s": compile_s,
                      "seconds": run_s, "steps_per_s": batch * args.steps / run_s})
         print(f"contacts batch {batch}: {rows[-1]['steps_per_s']:.0f} steps/s, "
               f"compile {compile_s:.1f} s", file=sys.stderr, flush=True)
-    table = markdown_table(["batch", "character-steps/s", "compile s"],
-                           [[r["batch"], f"{r['steps_per_s']:,.0f}", f"{r['compile_s']:.1f}"]
-                            for r in rows])
+    table = markdown_table(["batch", "devices", "character-steps/s", "compile s"],
+                           [[r["batch"], r["devices"], f"{r['steps_per_s']:,.0f}",
+                             f"{r['compile_s']:.1f}"] for r in rows])
     return rows, ("Humanoid on the ground, 600 Hz, maba, contacts and joint limits, float32\n\n"
                   f"{table}\n")
 
@@ -286,6 +306,8 @@ def parse_args(argv=None):
     p = sub.add_parser("stability")
     p.add_argument("--seconds", type=float, default=2.0)
     p.add_argument("--plots", type=Path, default=Path("docs"))
+    p = sub.add_parser("plot", help="redraw the stability plots from the last stability JSON")
+    p.add_argument("--plots", type=Path, default=Path("docs"))
     p = sub.add_parser("speed")
     p.add_argument("--rows", nargs="+", choices=list(ROWS), default=list(ROWS))
     p.add_argument("--methods", nargs="+", choices=("dense", "sparse", "maba"),
@@ -306,7 +328,7 @@ def parse_args(argv=None):
 
 def main(argv=None):
     args = parse_args(argv)
-    rows, table = {"stability": stability, "speed": speed, "contacts": contacts,
+    rows, table = {"stability": stability, "plot": replot, "speed": speed, "contacts": contacts,
                    "filmstrip": filmstrip}[args.experiment](args)
     print(table)
     record = {"command": shlex.join([sys.executable, *sys.argv]), "machine": machine_info(),

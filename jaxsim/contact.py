@@ -186,14 +186,17 @@ def contact_geometry(model: Model, world: World, rot_w, pos_w):
         gaps.append(a @ world.ground_normal - world.ground_offset - radius)
     if world.box_names:
         a, b, radius = _probe_segments(model, layout.box, rot_w, pos_w)
-        for k in range(len(world.box_names)):
-            box = (world.box_center[k], world.box_rotation[k], world.box_half_size[k])
+
+        def against(*box):
             t = _nearest_on_segment(a, b, *box)
             centre = a + t[:, None] * (b - a)
             dist, n = box_distance(centre, *box)
-            points.append(centre - radius[:, None] * n)
-            normals.append(n)
-            gaps.append(dist - radius)
+            return centre - radius[:, None] * n, n, dist - radius
+
+        x, n, gap = jax.vmap(against)(world.box_center, world.box_rotation, world.box_half_size)
+        points.append(x.reshape(-1, 3))                  # box-major, as `ContactLayout` orders
+        normals.append(n.reshape(-1, 3))
+        gaps.append(gap.reshape(-1))
     return jnp.concatenate(points), jnp.concatenate(normals), jnp.concatenate(gaps)
 
 

@@ -112,8 +112,10 @@ def simulate(model: Model, world: World, state: State, targets, dt, method: str 
 
 @functools.partial(jax.jit, static_argnames=("method", "substeps"))
 def simulate_batch(model: Model, world: World, states: State, targets, dt, method: str = "maba",
-                   substeps: int = 1):
+                   substeps: int = 1, target_velocities=None):
     """`simulate` for a batch of characters: states with a leading batch axis, targets
-    (batch, T, nq); the same model and world for all."""
-    run = functools.partial(simulate, method=method, substeps=substeps)
-    return jax.vmap(run, in_axes=(None, None, 0, 0, None))(model, world, states, targets, dt)
+    (batch, T, nq) and optional target velocities (batch, T, nv); one model and world for all."""
+    def run(state, target, target_velocity):
+        return simulate(model, world, state, target, dt, method, substeps, target_velocity)
+
+    return jax.vmap(run)(states, targets, target_velocities)

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsim import LinkSpec, build_model, characters, contact, kinematics, rest_pose
+from jaxsim import LinkSpec, build_model, characters, contact, kinematics, rest_pose, simulation
 from jaxsim.dynamics import aba
 from jaxsim.simulation import SimulationError, init_state, is_finite, simulate, step
 from jaxsim.tracking import tracking_model
@@ -262,3 +262,17 @@ def test_tracking_gains_cover_the_root_and_the_joints():
     model = tracking_model(characters.humanoid())
     np.testing.assert_array_equal(np.asarray(model.kp[:6]), 20000.0)
     np.testing.assert_array_equal(np.asarray(model.kd[6:]), 4000.0)
+
+
+def test_simulate_batch_equals_one_character_at_a_time():
+    model = single_body("sphere", (0.1, 0, 0))
+    w = world()
+    heights = [0.3, 0.5]
+    states = [init_state(model, w, rest_pose(model, h)) for h in heights]
+    targets = jnp.tile(rest_pose(model, 0.3), (2, 120, 1))
+    batched = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *states)
+    final, traj = simulation.simulate_batch(model, w, batched, targets, DT, substeps=2)
+    for k, state in enumerate(states):
+        alone, _ = simulate(model, w, state, targets[k], DT, substeps=2)
+        np.testing.assert_allclose(final.q[k], alone.q, rtol=1e-12, atol=1e-12)
+    assert traj.q.shape == (2, 120, model.nq)
