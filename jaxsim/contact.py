@@ -28,7 +28,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsim import kinematics
 from jaxsim.model import Model, Topology
 from jaxsim.world import World
 

@@ -97,6 +97,14 @@ def link_velocities(model: Model, q, qd):
     return v[:-1]
 
 
+def shape_poses(model: Model, rot_w, pos_w):
+    """World rotation (n, 3, 3) and centre (n, 3) of every link's collision shape, from the
+    links' world poses."""
+    rot = rot_w @ model.shape_rot
+    centre = pos_w + (rot_w @ model.shape_pos[..., None])[..., 0]
+    return rot, centre
+
+
 def point_positions(model: Model, q, links, offsets):
     """World positions of points given by link indices (k,) and offsets in those links (k, 3)."""
     r_w, p_w = forward_kinematics(model, q)
@@ -145,10 +153,8 @@ def qd_to_qdot(model: Model, q, qd):
         pure = jnp.concatenate([jnp.zeros(omega.shape[:-1] + (1,), omega.dtype), omega], -1)
         return 0.5 * rotations.quat_multiply(quat, pure)
 
-    sph = topo.links_of_type("spherical")
-    if len(sph):
-        qi = topo.q_offsets[sph][:, None] + np.arange(4)
-        vi = topo.dof_offsets[sph][:, None] + np.arange(3)
+    qi, vi = topo.spherical_indices
+    if len(qi):
         qdot = qdot.at[qi].set(quat_rate(q[qi], qd[vi]))
     if topo.floating:
         rot = rotations.quat_to_matrix(rotations.quat_normalize(q[3:7]))
@@ -174,10 +180,8 @@ def integrate(model: Model, q, qd, dt):
         turned = rotations.quat_multiply(quat, rotations.rotvec_to_quat(omega * dt))
         return rotations.quat_normalize(turned)
 
-    sph = topo.links_of_type("spherical")
-    if len(sph):
-        qi = topo.q_offsets[sph][:, None] + np.arange(4)
-        vi = topo.dof_offsets[sph][:, None] + np.arange(3)
+    qi, vi = topo.spherical_indices
+    if len(qi):
         q_next = q_next.at[qi].set(rotate(q[qi], qd[vi]))
     if topo.floating:
         rot = rotations.quat_to_matrix(rotations.quat_normalize(q[3:7]))

@@ -114,6 +114,13 @@ class Topology:
     def slot_mask(self) -> np.ndarray:
         return self.slot_dof_index < self.nv
 
+    @functools.cached_property
+    def spherical_indices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Indices of the spherical joints' quaternions in q (k, 4) and velocities in qd (k, 3)."""
+        sph = self.links_of_type("spherical")
+        return (self.q_offsets[sph][:, None] + np.arange(4),
+                self.dof_offsets[sph][:, None] + np.arange(3))
+
     def links_of_type(self, joint_type: str) -> np.ndarray:
         return np.array([i for i in range(1, self.n_links) if self.joint_types[i] == joint_type],
                         np.int32)

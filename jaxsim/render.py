@@ -53,11 +53,11 @@ def _shape_polygons(model: Model, rot_w, pos_w, view):
     items = []
     circle = np.linspace(0, 2 * np.pi, 24, endpoint=False)
     unit = np.stack([np.cos(circle), np.sin(circle)], -1)
+    rots, centres = (np.asarray(a, float) for a in kinematics.shape_poses(model, rot_w, pos_w))
     for i, kind in enumerate(model.topology.shape_types):
         if kind == "none":
             continue
-        rot = rot_w[i] @ np.asarray(model.shape_rot[i], float)
-        centre = pos_w[i] + rot_w[i] @ np.asarray(model.shape_pos[i], float)
+        rot, centre = rots[i], centres[i]
         size = np.asarray(model.shape_size[i], float)
         depth = view[2] @ centre
         if kind == "sphere":

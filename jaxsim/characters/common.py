@@ -13,13 +13,13 @@ Y_TO_X = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 def vertical_extent(model: Model, q=None):
     """Lowest and highest point (Y) of the collision shapes in pose q (the rest pose by default)."""
     q = rest_pose(model) if q is None else q
-    rot_w, pos_w = (np.asarray(a, float) for a in jax.jit(kinematics.forward_kinematics)(model, q))
+    rot_w, pos_w = jax.jit(kinematics.forward_kinematics)(model, q)
+    rots, centres = (np.asarray(a, float) for a in kinematics.shape_poses(model, rot_w, pos_w))
     lows, highs = [], []
     for i, shape in enumerate(model.topology.shape_types):
         if shape == "none":
             continue
-        rot = rot_w[i] @ np.asarray(model.shape_rot[i], float)
-        centre = pos_w[i] + rot_w[i] @ np.asarray(model.shape_pos[i], float)
+        rot, centre = rots[i], centres[i]
         size = np.asarray(model.shape_size[i], float)
         if shape == "sphere":
             reach = size[0]

@@ -17,7 +17,6 @@ Each returns (q̈, τ) with τ the joint torques actually applied (eq. 2.17: τ 
 
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
-import numpy as np
 
 from jaxsim import rotations
 from jaxsim.dynamics.aba import aba, articulated_body_solve
@@ -46,10 +45,8 @@ def pose_error(model: Model, q, target):
         return rotations.quat_to_rotvec(
             rotations.quat_multiply(rotations.quat_conjugate(desired), current))
 
-    sph = topo.links_of_type("spherical")
-    if len(sph):
-        qi = topo.q_offsets[sph][:, None] + np.arange(4)
-        vi = topo.dof_offsets[sph][:, None] + np.arange(3)
+    qi, vi = topo.spherical_indices
+    if len(qi):
         err = err.at[vi].set(rotation_error(q[qi], target[qi]))
     if topo.floating:
         rot = rotations.quat_to_matrix(rotations.quat_normalize(q[3:7]))
