@@ -11,8 +11,9 @@ Subcommands (each prints a markdown table and writes JSON to benchmarks/results/
              `simulate` call of --steps steps, median of repeats, compile time apart) for each
              method, character and batch size, and the share of the step spent in the SPD solve:
              1 − (time of the same scan with the solve taken out) / (time of the rollout).
-  contacts   Humanoid standing on the ground at 600 Hz (contacts, joint limits, maba):
-             character-steps per second and compile time at each batch size.
+  contacts   Humanoid standing on the ground at 600 Hz (contacts, joint limits, maba; with
+             --torque-limits also the two-pass torque limits): character-steps per second and
+             compile time at each batch size.
   filmstrip  The humanoid tracking the cartwheel clip, drawn as a filmstrip PNG.
   plot       Redraw the stability plots from the last stability JSON.
 
@@ -252,7 +253,7 @@ def contacts(args):
     internal = np.arange(model.nv) >= 6
     model = model.replace(kp=jnp.where(internal, 75000.0, 0.0).astype(model.kp.dtype),
                           kd=jnp.where(internal, 4000.0, 0.0).astype(model.kd.dtype))
-    world = make_world()
+    world = make_world(torque_limits=args.torque_limits)
     low, _ = characters.vertical_extent(model)
     from jaxsim.model import rest_pose
     q0 = rest_pose(model, -low + 0.05)                     # dropped from 5 cm: falls, lands
@@ -274,8 +275,9 @@ def contacts(args):
     table = markdown_table(["batch", "devices", "character-steps/s", "compile s"],
                            [[r["batch"], r["devices"], f"{r['steps_per_s']:,.0f}",
                              f"{r['compile_s']:.1f}"] for r in rows])
-    return rows, ("Humanoid on the ground, 600 Hz, maba, contacts and joint limits, float32\n\n"
-                  f"{table}\n")
+    limits = ", torque limits (two-pass)" if args.torque_limits else ""
+    return rows, (f"Humanoid on the ground, 600 Hz, maba, contacts and joint limits{limits}, "
+                  f"float32\n\n{table}\n")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -319,6 +321,8 @@ def parse_args(argv=None):
                    help="also time `sparse` above batch 1 (very slow: a scan over DoFs)")
     p = sub.add_parser("contacts")
     p.add_argument("--batch", nargs="+", type=int, default=[1, 256, 4096])
+    p.add_argument("--torque-limits", action="store_true",
+                   help="clip torques and re-solve with ABA where they bind (two-pass mode)")
     p.add_argument("--steps", type=int, default=60)
     p.add_argument("--repeats", type=int, default=5)
     p = sub.add_parser("filmstrip")
