@@ -173,7 +173,7 @@ def filmstrip(model: Model, qs, path, world: World | None = None, n_panels: int 
     picks = np.linspace(0, len(qs) - 1, min(n_panels, len(qs))).round().astype(int)
     rot, pos, view, height = _prepare(model, qs[picks], style, azimuth, elevation)
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(picks), figsize=(panel_size * len(picks), panel_size * 2),
+    fig, axes = plt.subplots(1, len(picks), figsize=(panel_size * len(picks), panel_size * 1.3),
                              squeeze=False)
     for k, ax in enumerate(axes[0]):
         _draw_panel(ax, model, rot[k], pos[k], world, view, pos[k, 0] @ view[0], height, style)
