@@ -31,7 +31,8 @@ import numpy as np
 from jaxsim.model import Model, Topology
 from jaxsim.world import World
 
-_BOX_CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+# The 8 corners of a box as multiples of its half-extents.
+BOX_CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
                         float)
 _GOLDEN_ITERATIONS = 16
 
@@ -65,7 +66,7 @@ def _probes(topology: Topology, against_box: bool) -> Probes:
             add(i, (0, -1, 0), (0, -1, 0), True)
             add(i, (0, 1, 0), (0, 1, 0), True)
         elif shape == "box":
-            for corner in _BOX_CORNERS:
+            for corner in BOX_CORNERS:
                 add(i, corner, corner, False)
     return Probes(np.array(link, np.int32), np.array(end_a, float).reshape(-1, 3),
                   np.array(end_b, float).reshape(-1, 3), np.array(rounded, bool))

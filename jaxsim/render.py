@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsim import kinematics
+from jaxsim.contact import BOX_CORNERS
 from jaxsim.model import Model
 from jaxsim.world import World
 
@@ -67,9 +68,7 @@ def _shape_polygons(model: Model, rot_w, pos_w, view):
             discs = (ends @ view[:2].T)[:, None, :] + size[0] * unit[None]
             polygon = _hull(discs.reshape(-1, 2))
         else:
-            corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
-                                for sz in (-1, 1)]) * size
-            polygon = _hull((centre + corners @ rot.T) @ view[:2].T)
+            polygon = _hull((centre + (BOX_CORNERS * size) @ rot.T) @ view[:2].T)
         items.append((depth, polygon))
     return items
 
@@ -93,6 +92,8 @@ def _hull(points):
 
 
 def _draw_world(ax, world: World | None, view):
+    """The ground (as a horizontal line at its height above the origin; an incline is drawn
+    flat) and the static boxes."""
     ground_y = 0.0
     if world is not None and world.ground:
         ground_y = float(world.ground_offset) / max(float(world.ground_normal[1]), 1e-6)
@@ -104,9 +105,7 @@ def _draw_world(ax, world: World | None, view):
         centre = np.asarray(world.box_center[k], float)
         rot = np.asarray(world.box_rotation[k], float)
         half = np.asarray(world.box_half_size[k], float)
-        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
-                            for sz in (-1, 1)]) * half
-        polygon = _hull((centre + corners @ rot.T) @ view[:2].T)
+        polygon = _hull((centre + (BOX_CORNERS * half) @ rot.T) @ view[:2].T)
         ax.fill(polygon[:, 0], polygon[:, 1], color="#c9a66b", ec="#7a5c2e", lw=1, zorder=2)
 
 
