@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsim import kinematics
 from jaxsim.model import Model, Topology
 from jaxsim.world import World
 
@@ -124,12 +125,12 @@ def _clip_norm(x, limit):
 def _probe_segments(model: Model, probes: Probes, rot_w, pos_w):
     """World positions of each probe's segment ends (P, 3) and its radius (P,)."""
     links = probes.link
-    size, shape_rot, shape_pos = model.shape_size[links], model.shape_rot[links], \
-        model.shape_pos[links]
+    shape_rot, centre = kinematics.shape_poses(model, rot_w, pos_w)
+    size = model.shape_size[links]
 
     def to_world(ends):
-        local = shape_pos + (shape_rot @ (jnp.asarray(ends, size.dtype) * size)[..., None])[..., 0]
-        return pos_w[links] + (rot_w[links] @ local[..., None])[..., 0]
+        offset = jnp.asarray(ends, size.dtype) * size
+        return centre[links] + (shape_rot[links] @ offset[..., None])[..., 0]
 
     radius = jnp.where(jnp.asarray(probes.rounded), size[:, 0], 0.0)
     return to_world(probes.end_a), to_world(probes.end_b), radius

@@ -82,19 +82,27 @@ def forward_kinematics(model: Model, q):
     return r_w[:-1], p_w[:-1]
 
 
-def link_velocities(model: Model, q, qd):
-    """Body-frame spatial velocity [ω; v] of every link (n, 6): v_i = X_i v_λ(i) + S_i q̇_i."""
+def link_states(model: Model, q, qd):
+    """World rotations (n, 3, 3), origins (n, 3) and body-frame spatial velocities [ω; v] (n, 6)
+    of every link, in one outward pass: v_i = X_i v_λ(i) + S_i q̇_i."""
     rot, pos = local_poses(model, q)
     s = motion_subspaces(model)
     slots = gather_slots(model.topology, qd)
     root_v = qd[:6] if model.topology.floating else jnp.zeros(6, qd.dtype)
 
-    def step(v_parent, data):
-        r, p, s_i, qd_i = data
-        return spatial.transform_motion(r.T, p, v_parent) + s_i @ qd_i
+    def step(parent, data):
+        (r_p, p_p, v_p), (r, p, s_i, qd_i) = parent, data
+        v = spatial.transform_motion(r.T, p, v_p) + s_i @ qd_i
+        return r_p @ r, p_p + r_p @ p, v
 
-    v = scan_outward(model.topology, step, root_v, (*pad_links((rot, pos, s)), slots))
-    return v[:-1]
+    r_w, p_w, v = scan_outward(model.topology, step, (rot[0], pos[0], root_v),
+                               (*pad_links((rot, pos, s)), slots))
+    return r_w[:-1], p_w[:-1], v[:-1]
+
+
+def link_velocities(model: Model, q, qd):
+    """Body-frame spatial velocity [ω; v] of every link (n, 6)."""
+    return link_states(model, q, qd)[2]
 
 
 def shape_poses(model: Model, rot_w, pos_w):
@@ -120,8 +128,7 @@ def center_of_mass(model: Model, q):
 
 def center_of_mass_velocity(model: Model, q, qd):
     """World velocity of the centre of mass from the links' body-frame velocities."""
-    r_w, _ = forward_kinematics(model, q)
-    v = link_velocities(model, q, qd)
+    r_w, _, v = link_states(model, q, qd)
     v_com_body = v[:, 3:] + jnp.cross(v[:, :3], model.com)
     v_com_w = (r_w @ v_com_body[..., None])[..., 0]
     return jnp.sum(model.mass[:, None] * v_com_w, 0) / jnp.sum(model.mass)
@@ -129,8 +136,7 @@ def center_of_mass_velocity(model: Model, q, qd):
 
 def spatial_momentum(model: Model, q, qd):
     """Total spatial momentum [angular; linear] about the world origin, in world coordinates."""
-    r_w, p_w = forward_kinematics(model, q)
-    v = link_velocities(model, q, qd)
+    r_w, p_w, v = link_states(model, q, qd)
     inertia = spatial.inertia_matrix(model.mass, model.com, model.inertia)
     h_body = (inertia @ v[..., None])[..., 0]
     h_world = spatial.transform_force_to_parent(jnp.swapaxes(r_w, -1, -2), p_w, h_body)

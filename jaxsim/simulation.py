@@ -75,8 +75,7 @@ def step(model: Model, world: World, state: State, target, dt, method: str = "ma
         if stretch is None:
             raise SimulationError("the state has no contact memory; make it with "
                                   "jaxsim.simulation.init_state(model, world, q, qd)")
-        rot_w, pos_w = kinematics.forward_kinematics(model, q)
-        v_body = kinematics.link_velocities(model, q, qd)
+        rot_w, pos_w, v_body = kinematics.link_states(model, q, qd)
         f_ext, stretch, touching = contact.contact_forces(model, world, rot_w, pos_w, v_body,
                                                           stretch, dt)
     extra = limits.joint_limit_torques(model, world, q, qd) if world.joint_limits else None

@@ -22,7 +22,8 @@ JOINT_GAINS = (75000.0, 4000.0)
 
 
 def tracking_model(model: Model, root_gains=ROOT_GAINS, joint_gains=JOINT_GAINS) -> Model:
-    """The model with the tracking gains on every DoF (the root's six included)."""
+    """The model with the tracking gains on every DoF, the root's six included (root gains of
+    zero leave the root free, as for standing)."""
     root = np.arange(model.nv) < (6 if model.topology.floating else 0)
     dtype = model.mass.dtype
     kp = jnp.asarray(np.where(root, root_gains[0], joint_gains[0]), dtype)
@@ -34,7 +35,7 @@ def initial_state(model: Model, world: World, clip: motion.Clip, t0=0.0) -> Stat
     """The clip's pose and velocity at t0, ready to step in `world`."""
     t0 = jnp.asarray(t0, clip.poses.dtype)
     q, qd = motion.sample_pose(clip, t0), motion.sample_velocity(clip, t0)
-    return init_state(model, world, q, qd) if world.has_contacts else State(q, qd)
+    return init_state(model, world, q, qd)
 
 
 def reference_targets(clip: motion.Clip, dt, n_steps: int):

@@ -34,10 +34,7 @@ def run(model, w, q, steps, qd=None, target=None, method="maba"):
 def test_humanoid_stands_for_five_seconds_in_its_rest_pose():
     # DeepMimic's own gains are too weak to hold the rest pose passively (the body leans and
     # falls within 3 s); the thesis's tracking gains hold it. The root is not actuated.
-    model = characters.humanoid().astype(jnp.float64)
-    internal = np.arange(model.nv) >= 6
-    model = model.replace(kp=jnp.where(internal, 75000.0, 0.0),
-                          kd=jnp.where(internal, 4000.0, 0.0))
+    model = tracking_model(characters.humanoid().astype(jnp.float64), root_gains=(0.0, 0.0))
     w = world()
     low, _ = characters.vertical_extent(model)
     q0 = rest_pose(model, -low)

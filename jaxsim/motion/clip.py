@@ -45,18 +45,14 @@ jax.tree_util.register_dataclass(Clip, data_fields=["times", "poses"],
                                  meta_fields=["topology", "loop"])
 
 
-def _quat_slots(topology: Topology) -> np.ndarray:
-    """(k, 4) indices of every quaternion in q (the root's first)."""
-    starts = [topology.q_offsets[i] + (3 if kind == "free" else 0)
-              for i, kind in enumerate(topology.joint_types) if kind in ("free", "spherical")]
-    return np.array(starts, np.int32).reshape(-1, 1) + np.arange(4)
-
-
-def _rotation_rates(topology: Topology) -> np.ndarray:
-    """(k, 3) indices into qd of the rotation rates matching `_quat_slots`."""
-    starts = [topology.dof_offsets[i] for i, kind in enumerate(topology.joint_types)
-              if kind in ("free", "spherical")]
-    return np.array(starts, np.int32).reshape(-1, 1) + np.arange(3)
+def _rotation_indices(topology: Topology):
+    """Indices of every quaternion in q (k, 4) and of its rotation rate in qd (k, 3): the root's
+    first (when it floats), then the spherical joints'."""
+    quats, rates = topology.spherical_indices
+    if topology.floating:
+        quats = np.concatenate([np.arange(3, 7)[None], quats])
+        rates = np.concatenate([np.arange(0, 3)[None], rates])
+    return quats, rates
 
 
 def _relative_rotation(q0, q1):
@@ -90,7 +86,7 @@ def sample_pose(clip: Clip, t):
     k, s, _, cycles = _locate(clip, t)
     q0, q1 = clip.poses[k], clip.poses[k + 1]
     pose = q0 + s * (q1 - q0)
-    quats = _quat_slots(clip.topology)
+    quats, _ = _rotation_indices(clip.topology)
     turned = rotations.quat_multiply(
         q0[quats], rotations.rotvec_to_quat(s * _relative_rotation(q0[quats], q1[quats])))
     pose = pose.at[quats].set(turned)
@@ -109,8 +105,8 @@ def sample_velocity(clip: Clip, t):
     if len(rev):
         qd = qd.at[topo.dof_offsets[rev]].set(
             (q1[topo.q_offsets[rev]] - q0[topo.q_offsets[rev]]) / interval)
-    quats = _quat_slots(topo)
-    qd = qd.at[_rotation_rates(topo)].set(_relative_rotation(q0[quats], q1[quats]) / interval)
+    quats, rates = _rotation_indices(topo)
+    qd = qd.at[rates].set(_relative_rotation(q0[quats], q1[quats]) / interval)
     if topo.floating:
         rot = rotations.quat_to_matrix(sample_pose(clip, t)[3:7])
         qd = qd.at[3:6].set(rot.T @ ((q1[:3] - q0[:3]) / interval))
@@ -144,7 +140,7 @@ def make_clip(model: Model, frame_durations, poses, loop: bool, source: str = "c
     if durations.shape != (poses.shape[0],) or np.any(durations[:-1] <= 0) or \
             not np.all(np.isfinite(durations)):
         raise ValueError(f"{source}: every frame but the last needs a positive duration")
-    quats = _quat_slots(topo)
+    quats, _ = _rotation_indices(topo)
     norms = np.linalg.norm(poses[:, quats], axis=-1)
     if np.any(norms < 1e-6):
         frame, slot = np.argwhere(norms < 1e-6)[0]
