@@ -149,8 +149,7 @@ def _fit(x, y, mask, prior_mean, key, restarts, steps, learning_rate):
     raws = jax.vmap(_fit_one_output, in_axes=(None, 0, None, 0, None, None, None))(
         x, residuals, mask, keys, restarts, steps, learning_rate)
     hyper = jax.vmap(_unpack, in_axes=(0, None))(raws, x.shape[1])
-    chol, alpha = jax.vmap(_factor, in_axes=(None, 0, None, 0))(x, residuals, mask, hyper)
-    return Posterior(x, mask, prior_mean, scale, hyper, chol, alpha)
+    return condition(Posterior(x, mask, prior_mean, scale, hyper, None, None), x, y, mask)
 
 
 @jax.jit
@@ -191,6 +190,7 @@ def fit(x, y, mask=None, prior_mean=None, key=None, restarts=8, steps=200, learn
     return _fit_jit(x, y, mask, prior_mean, key, restarts, steps, learning_rate)
 
 
+@jax.jit
 def predict(posterior: Posterior, x_star):
     """Posterior mean and variance of f (thesis eq. 3.6) at x_star (n*, d): two (n*, m) arrays in
     the outputs' units. The variance is that of the latent f (no observation noise)."""

@@ -2,6 +2,8 @@
 
 import jax.numpy as jnp
 
+from bds.acquisition import euclidean
+
 
 def novelty_reward(feature, known_features, threshold):
     """r_novelty(f) = clip(min_i ‖f − f_i‖ / d_threshold, 0.01, 1) (thesis eq. 3.12).
@@ -10,6 +12,5 @@ def novelty_reward(feature, known_features, threshold):
     jittable, so it runs inside rollouts (leading batch axes of `feature` broadcast).
     """
     feature = jnp.asarray(feature)
-    diff = feature[..., None, :] - jnp.asarray(known_features)
-    nearest = jnp.min(jnp.sqrt(jnp.sum(diff * diff, axis=-1)), axis=-1)
+    nearest = jnp.min(euclidean(feature[..., None, :], jnp.asarray(known_features)), axis=-1)
     return jnp.clip(nearest / threshold, 0.01, 1.0)

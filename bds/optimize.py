@@ -54,9 +54,10 @@ def maximize_lbfgs(fun, dim, key, starts=8, candidates=1024, steps=30):
         return z
 
     refined = _to_box(jax.vmap(run)(_from_box(points[best])))
+    refined_values = fun(refined)
     all_points = jnp.concatenate([points[best], refined])
-    all_values = fun(all_points)
-    all_values = jnp.where(jnp.isfinite(all_values), all_values, -jnp.inf)
+    all_values = jnp.concatenate([values[best], jnp.where(jnp.isfinite(refined_values),
+                                                          refined_values, -jnp.inf)])
     winner = jnp.argmax(all_values)
     return all_points[winner], all_values[winner]
 

@@ -198,7 +198,7 @@ class SearchLog:
     def __init__(self, path, header):
         self.path = Path(path) if path is not None else None
         self.header = header
-        self.plans = []            # (first_index, points, kinds) in order
+        self.plans = {}            # first_index -> (points, kinds)
         self.evaluations = {}      # index -> record
         if self.path is not None and self.path.exists():
             self._read()
@@ -235,7 +235,7 @@ class SearchLog:
                                  "use another log file or the same settings")
         for number, record in enumerate(records[1:], 2):
             if record.get("event") == "plan":
-                self.plans.append((record["first_index"], record["points"], record["kinds"]))
+                self.plans[record["first_index"]] = (record["points"], record["kinds"])
             elif record.get("event") == "evaluation":
                 self.evaluations[record["index"]] = record
             else:
@@ -260,7 +260,7 @@ class SearchLog:
             os.fsync(f.fileno())
 
     def add_plan(self, first_index, points, kinds):
-        self.plans.append((first_index, points, kinds))
+        self.plans[first_index] = (points, kinds)
         self._append({"event": "plan", "first_index": first_index, "points": points,
                       "kinds": kinds})
 
@@ -298,7 +298,7 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
 
     def history():
         done = [record_log.evaluations[i] for i in sorted(record_log.evaluations)]
-        x = np.array([gp.to_unit(np.array(r["x"]), lower, upper) for r in done]).reshape(-1, dim)
+        x = gp.to_unit(np.array([r["x"] for r in done]).reshape(-1, dim), lower, upper)
         f = np.array([r["feature"] for r in done])
         return x, f
 
@@ -319,13 +319,12 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
         if progress is not None:
             progress(record)
 
-    plans = {first: (points, kinds) for first, points, kinds in record_log.plans}
     first = 0
     with ThreadPoolExecutor(max_workers=workers) as pool:
         while first < settings.budget:
             count = min(settings.batch, settings.budget - first)
-            if first in plans:
-                points, kinds = plans[first]
+            if first in record_log.plans:
+                points, kinds = record_log.plans[first]
             else:
                 x_unit, features = history()
                 points, kinds = plan_round(settings, first, count, x_unit, features, dim)

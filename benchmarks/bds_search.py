@@ -14,13 +14,14 @@ Decision time: the wall time of planning one BDS pick (GP fit + acquisition + op
 50 observations in a 4-D box, for an exploration and a diversity pick; median of repeats after a
 warm-up (compile time reported separately).
 
-Run:  python benchmarks/bds.py                       (50 landscapes)
-      python benchmarks/bds.py --landscapes 5 --budget 10
+Run:  python benchmarks/bds_search.py                       (50 landscapes)
+      python benchmarks/bds_search.py --landscapes 5 --budget 10
 Writes JSON (default benchmarks/results/bds.json) and prints a markdown table.
 """
 
 import argparse
 import json
+import shlex
 import statistics
 import sys
 import time
@@ -28,12 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-# This script's own name is `bds`: drop its folder from the import path so `bds` is the package.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
-
-from agents.atomic import write_text_atomic  # noqa: E402
-from bds.landscapes import LandscapeSettings, StrategyLandscape  # noqa: E402
-from bds.search import SearchSettings, plan_round, search  # noqa: E402
+from agents.atomic import write_text_atomic
+from bds.landscapes import LandscapeSettings, StrategyLandscape
+from bds.search import SearchSettings, plan_round, search
+from spd import machine_info, markdown_table
 
 DEFAULT_JSON = Path(__file__).resolve().parent / "results" / "bds.json"
 METHODS = {
@@ -105,11 +104,10 @@ def main(argv=None):
     decisions = time_decisions(args.repeats)
     rows = run_diversity(args)
     table = summary(rows, args.checkpoints)
-    lines = ["| method | " + " | ".join(f"distinct @{c} (mean ± s.e.)" for c in args.checkpoints)
-             + " |", "|---" * (len(args.checkpoints) + 1) + "|"]
-    for method, by_checkpoint in table.items():
-        lines.append(f"| {method} | " + " | ".join(
-            f"{mean:.2f} ± {err:.2f}" for mean, err in by_checkpoint.values()) + " |")
+    lines = [markdown_table(
+        ["method", *(f"distinct @{c} (mean ± s.e.)" for c in args.checkpoints)],
+        [[method, *(f"{mean:.2f} ± {err:.2f}" for mean, err in by_checkpoint.values())]
+         for method, by_checkpoint in table.items()])]
     random_10 = table["random"][args.checkpoints[0]][0]
     lines.append("")
     lines.append(f"bds / random at {args.checkpoints[0]}: "
@@ -119,8 +117,8 @@ def main(argv=None):
         lines.append(f"one {kind} decision with 50 observations: median {t['median_s']:.3f} s "
                      f"(first call, with compilation: {t['first_call_s']:.2f} s)")
     print("\n".join(lines))
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    record = {"command": " ".join(sys.argv), "landscapes": args.landscapes,
+    record = {"command": shlex.join([sys.executable, *sys.argv]), "machine": machine_info(),
+              "landscapes": args.landscapes,
               "summary": {m: {str(c): v for c, v in t.items()} for m, t in table.items()},
               "decisions": decisions, "rows": rows}
     write_text_atomic(args.json, json.dumps(record, indent=2) + "\n")

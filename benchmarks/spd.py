@@ -107,20 +107,27 @@ def solver_args(model, inputs, method):
     return (model, inputs["q"], inputs["qd"], inputs["tau" if method == "aba" else "target"])
 
 
-def measure(method, args, repeats):
-    """Compile seconds, per-call seconds, and whether the outputs of jit(vmap(solver)) on `args`
-    are all finite (a solver that returns NaN is not worth timing, so the caller warns)."""
-    jitted = jax.jit(jax.vmap(solver(method), in_axes=(None, 0, 0, 0)))
+def compile_and_time(fn, args, repeats):
+    """Compile seconds of jit(fn) on `args`, the outputs of one warm-up call, and the seconds of
+    `repeats` further calls, each ended with `jax.block_until_ready`."""
     start = time.perf_counter()
-    compiled = jitted.lower(*args).compile()
+    compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - start
-    outputs = jax.block_until_ready(compiled(*args))                        # warm-up
-    finite = all(bool(jnp.isfinite(x).all()) for x in jax.tree.leaves(outputs))
+    outputs = jax.block_until_ready(compiled(*args))
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
         jax.block_until_ready(compiled(*args))
         times.append(time.perf_counter() - start)
+    return compile_s, outputs, times
+
+
+def measure(method, args, repeats):
+    """Compile seconds, per-call seconds, and whether the outputs of jit(vmap(solver)) on `args`
+    are all finite (a solver that returns NaN is not worth timing, so the caller warns)."""
+    compile_s, outputs, times = compile_and_time(
+        jax.vmap(solver(method), in_axes=(None, 0, 0, 0)), args, repeats)
+    finite = all(bool(jnp.isfinite(x).all()) for x in jax.tree.leaves(outputs))
     return compile_s, times, finite
 
 
@@ -216,11 +223,6 @@ def machine_info():
     }
 
 
-def write_atomic(path, text):
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path, text)
-
-
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--characters", nargs="+", choices=list(CHARACTERS),
@@ -247,7 +249,7 @@ def main(argv=None):
     table = markdown(rows, ratio_rows)
     print(table)
     if args.markdown:
-        write_atomic(args.markdown, table)
+        write_text_atomic(args.markdown, table)
     record = {
         "command": shlex.join([sys.executable, *sys.argv]),
         "machine": machine_info(),
@@ -256,7 +258,7 @@ def main(argv=None):
         "results": rows,
         "ratios": ratio_rows,
     }
-    write_atomic(args.json, json.dumps(record, indent=2) + "\n")
+    write_text_atomic(args.json, json.dumps(record, indent=2) + "\n")
     print(f"wrote {args.json}", file=sys.stderr)
 
 

@@ -39,8 +39,10 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)      # float64 runs; every model/world is cast explicitly
 
 from jaxsim import characters, kinematics, motion, simulation, tracking  # noqa: E402
+from jaxsim.model import rest_pose  # noqa: E402
 from jaxsim.world import make_world  # noqa: E402
-from spd import machine_info, markdown_table, write_atomic  # noqa: E402
+from agents.atomic import write_text_atomic  # noqa: E402
+from spd import compile_and_time, machine_info, markdown_table  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = {"600": 1 / 600, "300": 1 / 300, "240": 1 / 240, "120": 1 / 120, "60": 1 / 60,
@@ -189,16 +191,7 @@ def _batched(state, batch):
 
 def _timed(fn, args, repeats):
     """Compile seconds and the median of `repeats` run times of jit(fn)(*args)."""
-    jitted = jax.jit(fn)
-    start = time.perf_counter()
-    compiled = jitted.lower(*args).compile()
-    compile_s = time.perf_counter() - start
-    jax.block_until_ready(compiled(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        times.append(time.perf_counter() - start)
+    compile_s, _, times = compile_and_time(fn, args, repeats)
     return compile_s, statistics.median(times)
 
 
@@ -249,13 +242,9 @@ def speed(args):
 
 
 def contacts(args):
-    model = characters.humanoid()
-    internal = np.arange(model.nv) >= 6
-    model = model.replace(kp=jnp.where(internal, 75000.0, 0.0).astype(model.kp.dtype),
-                          kd=jnp.where(internal, 4000.0, 0.0).astype(model.kd.dtype))
+    model = tracking.tracking_model(characters.humanoid(), root_gains=(0.0, 0.0))
     world = make_world(torque_limits=args.torque_limits)
     low, _ = characters.vertical_extent(model)
-    from jaxsim.model import rest_pose
     q0 = rest_pose(model, -low + 0.05)                     # dropped from 5 cm: falls, lands
     targets = jnp.tile(q0, (args.steps, 1))
     rows = []
@@ -338,7 +327,7 @@ def main(argv=None):
     record = {"command": shlex.join([sys.executable, *sys.argv]), "machine": machine_info(),
               "results": rows}
     path = RESULTS / f"tracking_{args.experiment}.json"
-    write_atomic(path, json.dumps(record, indent=2) + "\n")
+    write_text_atomic(path, json.dumps(record, indent=2) + "\n")
     print(f"wrote {path}", file=sys.stderr)
 
 
