@@ -4,7 +4,7 @@ import argparse
 import os
 import sys
 
-from agents.atomic import write_text_atomic
+from jaxsim.atomic import write_text_atomic
 
 
 def _load_character(spec: str):

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import config as config_io
-from agents.atomic import write_text_atomic
+from jaxsim.atomic import write_text_atomic
 from bds.gp import to_unit
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.search import SearchSettings, check_bounds, search

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.atomic import write_text_atomic
+from jaxsim.atomic import write_text_atomic
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.search import SearchSettings, plan_round, search
 from spd import machine_info, markdown_table

@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.atomic import write_text_atomic
+from jaxsim.atomic import write_text_atomic
 from jaxsim import characters, dynamics, rotations
 
 CHARACTERS = {

@@ -41,7 +41,7 @@ jax.config.update("jax_enable_x64", True)      # float64 runs; every model/world
 from jaxsim import characters, kinematics, motion, simulation, tracking  # noqa: E402
 from jaxsim.model import rest_pose  # noqa: E402
 from jaxsim.world import make_world  # noqa: E402
-from agents.atomic import write_text_atomic  # noqa: E402
+from jaxsim.atomic import write_text_atomic  # noqa: E402
 from spd import compile_and_time, machine_info, markdown_table  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"

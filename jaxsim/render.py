@@ -7,15 +7,14 @@ world's static boxes. Needs matplotlib (`pip install 'takeoff[render]'`); nothin
 imports this module.
 """
 
-import contextlib
 import os
-import tempfile
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxsim import kinematics
+from jaxsim.atomic import atomic_path
 from jaxsim.contact import BOX_CORNERS
 from jaxsim.model import Model
 from jaxsim.world import World
@@ -127,22 +126,6 @@ def _check_style(style):
         raise ValueError(f"style must be one of {', '.join(STYLES)}, got {style!r}")
 
 
-@contextlib.contextmanager
-def _atomic(path):
-    """Yield a temporary file name beside `path`; rename it into place when the block succeeds."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    handle, tmp = tempfile.mkstemp(suffix=os.path.splitext(path)[1], dir=directory)
-    os.close(handle)
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-
-
 def _draw_panel(ax, model: Model, rot_w, pos_w, world, view, centre, height, style):
     """One pose in a square-ish panel whose horizontal centre is `centre` (screen units)."""
     half_width = 0.5 * height
@@ -181,7 +164,7 @@ def filmstrip(model: Model, qs, path, world: World | None = None, n_panels: int 
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    with _atomic(path) as tmp:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
 
@@ -202,7 +185,7 @@ def animation(model: Model, qs, path, world: World | None = None, fps: float = 3
         centre = pos[k if follow else 0, 0] @ view[0]
         _draw_panel(ax, model, rot[k], pos[k], world, view, centre, height, style)
 
-    with _atomic(path) as tmp:
+    with atomic_path(path) as tmp:
         FuncAnimation(fig, draw, frames=len(pos)).save(tmp, writer=PillowWriter(fps=fps))
     plt.close(fig)
 
@@ -217,7 +200,7 @@ def frames(model: Model, qs, directory, world: World | None = None, style: str =
         fig, ax = plt.subplots(figsize=(size, size))
         _draw_panel(ax, model, rot[k], pos[k], world, view, pos[k, 0] @ view[0], height, style)
         paths.append(os.path.join(os.fspath(directory), f"frame_{k:05d}.png"))
-        with _atomic(paths[-1]) as tmp:
+        with atomic_path(paths[-1]) as tmp:
             fig.savefig(tmp, dpi=80, format="png")
         plt.close(fig)
     return paths
