@@ -22,7 +22,8 @@ from jaxsim.world import World
 STYLES = ("shapes", "sticks")
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib.pyplot on the file-only Agg backend (an ImportError says what to install)."""
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -126,16 +127,21 @@ def _check_style(style):
         raise ValueError(f"style must be one of {', '.join(STYLES)}, got {style!r}")
 
 
-def _draw_panel(ax, model: Model, rot_w, pos_w, world, view, centre, height, style):
-    """One pose in a square-ish panel whose horizontal centre is `centre` (screen units)."""
+def _frame_panel(ax, world, view, centre, height):
+    """The world and a square-ish view whose horizontal centre is `centre` (screen units)."""
     half_width = 0.5 * height
     _draw_world(ax, world, view)
-    _draw_pose(ax, model, rot_w, pos_w, view, style, "#4c72b0")
     ax.set_xlim(centre - half_width, centre + half_width)
     ax.set_ylim(-0.1, height)
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
+
+
+def _draw_panel(ax, model: Model, rot_w, pos_w, world, view, centre, height, style):
+    """One pose of `model` in its panel."""
+    _frame_panel(ax, world, view, centre, height)
+    _draw_pose(ax, model, rot_w, pos_w, view, style, "#4c72b0")
 
 
 def _prepare(model, qs, style, azimuth, elevation):
@@ -154,19 +160,75 @@ def filmstrip(model: Model, qs, path, world: World | None = None, n_panels: int 
     qs = np.asarray(qs)
     picks = np.linspace(0, len(qs) - 1, min(n_panels, len(qs))).round().astype(int)
     rot, pos, view, height = _prepare(model, qs[picks], style, azimuth, elevation)
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(picks), figsize=(panel_size * len(picks), panel_size * 1.3),
                              squeeze=False)
     for k, ax in enumerate(axes[0]):
         _draw_panel(ax, model, rot[k], pos[k], world, view, pos[k, 0] @ view[0], height, style)
         if times is not None:
             ax.set_title(f"t = {float(np.asarray(times)[picks[k]]):.2f} s", fontsize=9)
+    save_figure(fig, path, title)
+
+
+def save_figure(fig, path, title: str | None = None, dpi: int = 100):
+    """Lay out a matplotlib figure, write it as a PNG atomically, and close it."""
     if title:
         fig.suptitle(title)
     fig.tight_layout()
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+        fig.savefig(tmp, dpi=dpi, format="png")
+    pyplot().close(fig)
+
+
+def pose_grid(model: Model, qs, path, columns: int = 6, style: str = "shapes",
+              azimuth: float = 0.0, elevation: float = 0.0, title: str | None = None,
+              panel_size: float = 2.0):
+    """Every pose of `qs` (k, nq) in a grid of `columns` columns, each panel centred on its
+    root, saved as a PNG."""
+    qs = np.asarray(qs)
+    rot, pos, view, height = _prepare(model, qs, style, azimuth, elevation)
+    plt = pyplot()
+    rows = -(-len(qs) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(panel_size * columns,
+                                                     panel_size * 1.2 * rows), squeeze=False)
+    for k, ax in enumerate(axes.ravel()):
+        if k < len(qs):
+            _draw_panel(ax, model, rot[k], pos[k], world=None, view=view,
+                        centre=pos[k, 0] @ view[0], height=height, style=style)
+        else:
+            ax.axis("off")
+    save_figure(fig, path, title)
+
+
+def comparison_filmstrip(model: Model, qs, bones, path, n_panels: int = 8,
+                         azimuth: float = 0.0, elevation: float = 0.0, times=None,
+                         labels=("source", "model"), title: str | None = None,
+                         panel_size: float = 2.2):
+    """Two rows at the same evenly spaced frames: on top a source skeleton drawn as sticks,
+    `bones` (T, n_bones, 2, 3) holding each bone's start and end in our world coordinates with
+    bone 0 the root; below, `model` in the poses `qs` (T, nq). Saved as a PNG."""
+    qs, bones = np.asarray(qs), np.asarray(bones, float)
+    if len(qs) != len(bones):
+        raise ValueError(f"qs has {len(qs)} frames but bones has {len(bones)}")
+    picks = np.linspace(0, len(qs) - 1, min(n_panels, len(qs))).round().astype(int)
+    rot, pos, view, height = _prepare(model, qs[picks], "shapes", azimuth, elevation)
+    height = max(height, float(bones[picks][..., 1].max()) + 0.5)
+    plt = pyplot()
+    fig, axes = plt.subplots(2, len(picks), figsize=(panel_size * len(picks),
+                                                     panel_size * 2.4), squeeze=False)
+    for k, pick in enumerate(picks):
+        screen = bones[pick] @ view[:2].T
+        _frame_panel(axes[0, k], None, view, screen[0, 0, 0], height)
+        for start, end in screen:
+            axes[0, k].plot([start[0], end[0]], [start[1], end[1]], color="#dd8452", lw=2,
+                            zorder=3)
+        _draw_panel(axes[1, k], model, rot[k], pos[k], None, view, pos[k, 0] @ view[0],
+                    height, "shapes")
+        if times is not None:
+            axes[0, k].set_title(f"t = {float(np.asarray(times)[pick]):.2f} s", fontsize=9)
+    axes[0, 0].set_ylabel(labels[0])
+    axes[1, 0].set_ylabel(labels[1])
+    save_figure(fig, path, title)
 
 
 def animation(model: Model, qs, path, world: World | None = None, fps: float = 30.0,
@@ -175,7 +237,7 @@ def animation(model: Model, qs, path, world: World | None = None, fps: float = 3
     """An animated GIF of every pose in `qs` (T, nq) at `fps` frames per second; the view
     follows the root unless `follow` is False."""
     rot, pos, view, height = _prepare(model, qs, style, azimuth, elevation)
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.animation import FuncAnimation, PillowWriter
 
     fig, ax = plt.subplots(figsize=(size, size))
@@ -194,7 +256,7 @@ def frames(model: Model, qs, directory, world: World | None = None, style: str =
            azimuth: float = 0.0, elevation: float = 0.0, size: float = 4.0):
     """One PNG per pose, `frame_00000.png`, … in `directory`; returns the paths."""
     rot, pos, view, height = _prepare(model, qs, style, azimuth, elevation)
-    plt = _pyplot()
+    plt = pyplot()
     paths = []
     for k in range(len(pos)):
         fig, ax = plt.subplots(figsize=(size, size))
