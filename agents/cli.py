@@ -67,6 +67,28 @@ def _cmd_search(args):
         raise SystemExit(f"takeoff search: {error}")
 
 
+def _cmd_pvae_dataset(args):
+    from agents import pvae_commands
+    from agents.pose_dataset import DatasetError
+    from jaxsim.motion import MotionFileError
+
+    try:
+        pvae_commands.build_dataset(pvae_commands.data_dir_from(args.data_dir), args.out)
+    except (DatasetError, MotionFileError) as error:
+        raise SystemExit(f"takeoff pvae dataset: {error}")
+
+
+def _cmd_pvae_train(args):
+    from agents import pvae_commands
+    from agents.config import ConfigError
+    from agents.pose_dataset import DatasetError
+
+    try:
+        pvae_commands.train(args.config, args.out, args.set)
+    except (ConfigError, DatasetError, ValueError) as error:
+        raise SystemExit(f"takeoff pvae train: {error}")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="takeoff", description="Batched, differentiable character simulation in JAX.")
@@ -89,6 +111,19 @@ def build_parser():
     p.add_argument("--workers", type=int, default=1,
                    help="evaluate a round's points in this many threads at once")
     p.set_defaults(run=_cmd_search)
+    p = sub.add_parser("pvae", help="the pose VAE: build its dataset from motion capture, train it")
+    pvae_sub = p.add_subparsers(dest="pvae_command", metavar="STEP", required=True)
+    q = pvae_sub.add_parser("dataset", help="retarget CMU 01-03 and DeepMimic clips to the "
+                                            "humanoid and save 30 Hz pose features")
+    q.add_argument("--data-dir", help="reference data directory (default: $TAKEOFF_DATA)")
+    q.add_argument("--out", default="poses.npz", help="dataset file (default poses.npz)")
+    q.set_defaults(run=_cmd_pvae_dataset)
+    q = pvae_sub.add_parser("train", help="train a P-VAE from a config, e.g. configs/pvae.toml")
+    q.add_argument("config", help="TOML config")
+    q.add_argument("--out", help="run directory (default runs/<config name>)")
+    q.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a config value (repeatable)")
+    q.set_defaults(run=_cmd_pvae_train)
     return parser
 
 

@@ -23,7 +23,7 @@ import jax
 import numpy as np
 
 from jaxsim import kinematics
-from jaxsim.model import Model
+from jaxsim.model import Model, rest_pose
 from jaxsim.motion.clip import Clip, sample_pose
 
 
@@ -122,11 +122,8 @@ def model_skeleton(model: Model) -> Skeleton:
     """A model's links as a skeleton in its rest pose (root at the origin). A bone's tip is the
     mean of its children's joints, or its collision shape's far end for a leaf link."""
     topo = model.topology
-    q0 = np.zeros(topo.nq)
-    q0[3] = 1.0  # identity root quaternion; joint quaternions likewise
-    for i in topo.links_of_type("spherical"):
-        q0[topo.q_offsets[i]] = 1.0
-    rot, pos = (np.asarray(a, float) for a in kinematics.forward_kinematics(model, q0))
+    rot, pos = (np.asarray(a, float)
+                for a in kinematics.forward_kinematics(model, rest_pose(model)))
     tips = pos.copy()
     for i in range(topo.n_links):
         children = [j for j in range(topo.n_links) if topo.parents[j] == i]

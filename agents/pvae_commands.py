@@ -1,0 +1,56 @@
+"""`takeoff pvae dataset` and `takeoff pvae train`: the P-VAE's data and training runs."""
+
+import os
+import time
+from pathlib import Path
+
+from agents import config as config_io
+from agents import pose_dataset, pvae, pvae_report
+from jaxsim import characters
+
+PCA_SHARE = 0.85
+
+
+def data_dir_from(argument=None) -> Path:
+    """--data-dir, else $TAKEOFF_DATA; the user must name one (data never ships with takeoff)."""
+    path = argument or os.environ.get("TAKEOFF_DATA")
+    if not path:
+        raise pose_dataset.DatasetError("name the data directory with --data-dir or "
+                                        "TAKEOFF_DATA (e.g. ../shared/data)")
+    return Path(path)
+
+
+def build_dataset(data_dir, out, echo=print):
+    """Build, save and summarise the pose dataset; a PCA plot goes beside it as <out>_pca.png."""
+    model = characters.humanoid()
+    start = time.perf_counter()
+    echo(f"collecting poses from {data_dir} at {pose_dataset.FRAME_RATE:g} Hz")
+    dataset = pose_dataset.build(data_dir, model, echo)
+    pose_dataset.save(dataset, out)
+    shares = {kind: pose_dataset.principal_variance(dataset.features, kind == "standardised")
+              for kind in ("raw", "standardised")}
+    needed = {kind: pose_dataset.components_needed(s, PCA_SHARE) for kind, s in shares.items()}
+    echo(f"{len(dataset)} poses from {len(dataset.clip_names)} clips, "
+         f"{dataset.features.shape[1]} features, {dataset.targets.shape[1]} target numbers, "
+         f"in {time.perf_counter() - start:.0f} s → {out}")
+    echo(f"PCA: {needed['raw']} principal components explain {PCA_SHARE:.0%} of the variance "
+         f"of the features ({needed['standardised']} once each feature is standardised)")
+    plot = Path(out).with_name(Path(out).stem + "_pca.png")
+    if pvae_report.plot_pca(shares, PCA_SHARE, plot):
+        echo(f"PCA curve → {plot}")
+    return dataset, needed
+
+
+def train(config_path, out_dir=None, overrides=(), echo=print):
+    """Train a P-VAE from a config; weights, normalisation, config and report in out_dir."""
+    config = config_io.load(config_path, pvae.PVAEConfig, overrides)
+    model = characters.humanoid()
+    dataset = pose_dataset.load(config.data.dataset, model)
+    out_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
+    echo(f"P-VAE: {len(dataset)} poses from {config.data.dataset}, latent "
+         f"{config.model.latent_size}, {config.train.epochs} epochs → {out_dir}")
+    result = pvae.train(config, dataset, echo)
+    pvae.save(result, config, out_dir)
+    pvae_report.write_report(model, config, dataset, result, out_dir, echo)
+    echo(f"trained in {result.seconds:.1f} s; weights, normalisation and report in {out_dir}")
+    return result
