@@ -115,7 +115,8 @@ def _plot_joint_errors(render, errors, path):
     ax.bar(x + 0.2, [errors[n][0] for n in names], 0.4, label="P-VAE", color="#4c72b0")
     ax.set_xticks(x, [n.replace("_", " ") for n in names], rotation=45, ha="right")
     ax.set_ylabel("held-out error (degrees)")
-    ax.legend()
+    ax.set_ylim(0, 1.3 * max(max(pair) for pair in errors.values()))
+    ax.legend(ncol=2, loc="upper center")
     render.save_figure(fig, path, dpi=110)
 
 
