@@ -1,0 +1,83 @@
+"""The environment interface: pure `reset` and `step` over pytrees (DESIGN.md, "Agents").
+
+An environment is a Python object that holds what is fixed for a whole run (the character, the
+world, the clip, reward weights) and exposes pure functions of one environment:
+
+    reset(params, key) -> EnvState
+    step(params, state, action) -> EnvState
+
+`params` is the task-parameter pytree (gravity, bar height, …: anything a sweep may vmap over or
+differentiate); `default_params()` gives it. Batching is `jax.vmap` over states (and keys), done by
+the rollout, which also resets finished environments automatically.
+
+A step ends an episode in one of two ways that learning must keep apart: `terminated` (a true
+terminal state, e.g. the character fell: its value is 0, no bootstrapping) or `truncated` (the
+time limit: the episode was cut short, so the value of the last observation is bootstrapped).
+`truncated` is only set when `terminated` is not.
+"""
+
+import dataclasses
+from typing import Any, Protocol
+
+import jax
+import jax.numpy as jnp
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvState:
+    """One environment after a reset or a step.
+
+    physics     the simulated state (a `jaxsim.model.State`, or any pytree for other tasks)
+    obs         (observation_size,) the observation the policy sees next
+    reward      () the reward of the step that led here (0 after a reset)
+    terminated  () bool, truncated () bool: see the module docstring
+    steps       () int, control steps since the reset
+    key         the environment's own PRNG key (reset randomness)
+    task        task-specific pytree (e.g. the clip time at which the episode started)
+    metrics     dict of () numbers to average in the logs (reward terms, errors, …)
+    """
+
+    physics: Any
+    obs: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    steps: jax.Array
+    key: jax.Array
+    task: Any
+    metrics: dict
+
+    def replace(self, **changes) -> "EnvState":
+        return dataclasses.replace(self, **changes)
+
+
+jax.tree_util.register_dataclass(
+    EnvState, data_fields=[f.name for f in dataclasses.fields(EnvState)], meta_fields=[])
+
+
+class Env(Protocol):
+    observation_size: int
+    action_size: int
+    episode_steps: int          # the time limit, in control steps
+
+    def default_params(self) -> Any: ...
+
+    def reset(self, params, key) -> EnvState: ...
+
+    def step(self, params, state: EnvState, action) -> EnvState: ...
+
+
+def end_of_step(state: EnvState, physics, obs, reward, terminated, task, metrics,
+                episode_steps: int) -> EnvState:
+    """The state after a step: counts it, and truncates at the time limit unless terminated."""
+    steps = state.steps + 1
+    terminated = jnp.asarray(terminated, bool)
+    return EnvState(physics, obs, jnp.asarray(reward, obs.dtype), terminated,
+                    (steps >= episode_steps) & ~terminated, steps, state.key, task, metrics)
+
+
+def start_of_episode(physics, obs, key, task, metrics) -> EnvState:
+    """The state after a reset: no reward yet, not done, step 0."""
+    false = jnp.zeros((), bool)
+    return EnvState(physics, obs, jnp.zeros((), obs.dtype), false, false,
+                    jnp.zeros((), jnp.int32), key, task, metrics)

@@ -1,0 +1,1 @@
+"""Tasks: environments with pure `reset` and `step` (see `agents.env`)."""
