@@ -69,12 +69,13 @@ def _cmd_search(args):
 
 def _cmd_pvae_dataset(args):
     from agents import pvae_commands
+    from agents.datadir import DataDirError, data_dir_from
     from agents.pose_dataset import DatasetError
     from jaxsim.motion import MotionFileError
 
     try:
-        pvae_commands.build_dataset(pvae_commands.data_dir_from(args.data_dir), args.out)
-    except (DatasetError, MotionFileError) as error:
+        pvae_commands.build_dataset(data_dir_from(args.data_dir), args.out)
+    except (DataDirError, DatasetError, MotionFileError) as error:
         raise SystemExit(f"takeoff pvae dataset: {error}")
 
 
@@ -87,6 +88,41 @@ def _cmd_pvae_train(args):
         pvae_commands.train(args.config, args.out, args.set)
     except (ConfigError, DatasetError, ValueError) as error:
         raise SystemExit(f"takeoff pvae train: {error}")
+
+
+def _cmd_train(args):
+    from agents import train_commands
+    from agents.config import ConfigError
+    from agents.datadir import DataDirError
+
+    if (args.config is None) == (args.resume is None):
+        raise SystemExit("takeoff train: give a CONFIG to start a run or --resume DIR, not both")
+    try:
+        train_commands.train(args.config, args.out, args.set, args.resume, args.data_dir)
+    except (ConfigError, DataDirError, FileNotFoundError, ValueError) as error:
+        raise SystemExit(f"takeoff train: {error}")
+    except KeyboardInterrupt:
+        raise SystemExit(130)
+
+
+def _cmd_eval(args):
+    from agents import train_commands
+    from agents.config import ConfigError
+    from agents.datadir import DataDirError
+
+    try:
+        train_commands.evaluate(args.run_dir, args.episodes, args.render, args.data_dir)
+    except (ConfigError, DataDirError, FileNotFoundError) as error:
+        raise SystemExit(f"takeoff eval: {error}")
+
+
+def _cmd_plot(args):
+    from agents import train_commands
+
+    path = train_commands.plot(args.run_dir)
+    if path is None:
+        raise SystemExit(f"takeoff plot: {args.run_dir} has no metrics yet")
+    print(f"wrote {path}")
 
 
 def build_parser():
@@ -124,6 +160,23 @@ def build_parser():
     q.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a config value (repeatable)")
     q.set_defaults(run=_cmd_pvae_train)
+    p = sub.add_parser("train", help="train a policy with PPO from a config, or resume a run")
+    p.add_argument("config", nargs="?", help="TOML config, e.g. configs/imitate_walk.toml")
+    p.add_argument("--out", help="run directory (default runs/<config name>)")
+    p.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its checkpoint")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a config value (repeatable)")
+    p.add_argument("--data-dir", help="reference data directory (default: $TAKEOFF_DATA)")
+    p.set_defaults(run=_cmd_train)
+    p = sub.add_parser("eval", help="run a trained policy deterministically and report")
+    p.add_argument("run_dir", help="a run directory from takeoff train")
+    p.add_argument("--episodes", type=int, default=8)
+    p.add_argument("--render", metavar="OUT.gif", help="also write an animation of episode 0")
+    p.add_argument("--data-dir", help="reference data directory (default: $TAKEOFF_DATA)")
+    p.set_defaults(run=_cmd_eval)
+    p = sub.add_parser("plot", help="draw a run's learning curve (learning_curve.png)")
+    p.add_argument("run_dir")
+    p.set_defaults(run=_cmd_plot)
     return parser
 
 

@@ -28,11 +28,11 @@ _VARIANCE_EPS = 1e-8
 
 @dataclass(frozen=True)
 class PPOSettings:
-    """The `[ppo]` config section."""
+    """The `[ppo]` config section; defaults are the thesis's (DESIGN.md, "Agents")."""
 
-    gamma: float = 0.95
+    gamma: float = 1.0               # episodic, sparse-reward jump tasks
     lam: float = 0.95
-    clip: float = 0.2
+    clip: float = 0.02
     policy_lr: float = 2.5e-5
     value_lr: float = 1e-2
     epochs: int = 5                  # passes over each batch

@@ -1,6 +1,5 @@
 """`takeoff pvae dataset` and `takeoff pvae train`: the P-VAE's data and training runs."""
 
-import os
 import time
 from pathlib import Path
 
@@ -9,15 +8,6 @@ from agents import pose_dataset, pvae, pvae_report
 from jaxsim import characters
 
 PCA_SHARE = 0.85
-
-
-def data_dir_from(argument=None) -> Path:
-    """--data-dir, else $TAKEOFF_DATA; the user must name one (data never ships with takeoff)."""
-    path = argument or os.environ.get("TAKEOFF_DATA")
-    if not path:
-        raise pose_dataset.DatasetError("name the data directory with --data-dir or "
-                                        "TAKEOFF_DATA (e.g. ../shared/data)")
-    return Path(path)
 
 
 def build_dataset(data_dir, out, echo=print):

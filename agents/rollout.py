@@ -1,0 +1,113 @@
+"""The one jitted rollout: N vmapped environments, T control steps, automatic resets.
+
+`make_rollout(env, policy_apply, value_apply, n_steps)` returns a pure function that scans
+`n_steps` control steps (each environment's `step` scans its own simulation substeps) for a batch
+of environments and returns the trajectory as a `ppo.Batch` (time-major), the raw observations
+(for the running normalisation), the finished episodes' returns and lengths, the environments'
+metrics and, on request, their physics states. Actions are sampled from the Gaussian policy, or
+its mean when `deterministic` (evaluation). An environment whose episode ends is reset in the
+same step, after the value of its last observation has been taken for bootstrapping.
+"""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from agents.env import Env, EnvState
+from agents.networks import action_distribution
+from agents.ppo import Batch, RunningNorm
+
+
+@dataclasses.dataclass(frozen=True)
+class Episodes:
+    """Per step and environment (T, N): whether an episode ended there, and its return and
+    length (0 where none ended)."""
+
+    ended: jax.Array
+    returns: jax.Array
+    lengths: jax.Array
+
+
+jax.tree_util.register_dataclass(Episodes, data_fields=["ended", "returns", "lengths"],
+                                 meta_fields=[])
+
+
+@dataclasses.dataclass(frozen=True)
+class Runner:
+    """What carries over between rollouts: the environments and their running episode sums."""
+
+    envs: EnvState            # batched
+    episode_return: jax.Array  # (N,)
+    episode_length: jax.Array  # (N,)
+
+
+jax.tree_util.register_dataclass(Runner, data_fields=["envs", "episode_return",
+                                                      "episode_length"], meta_fields=[])
+
+
+def start_runner(env: Env, params, key, n_envs: int) -> Runner:
+    envs = jax.vmap(env.reset, in_axes=(None, 0))(params, jax.random.split(key, n_envs))
+    zeros = jnp.zeros(n_envs, envs.reward.dtype)
+    return Runner(envs, zeros, jnp.zeros(n_envs, jnp.int32))
+
+
+def _select(done, fresh, stepped):
+    """Per environment: the fresh (reset) state where done, else the stepped one."""
+    def pick(a, b):
+        return jnp.where(done.reshape(done.shape + (1,) * (a.ndim - done.ndim)), a, b)
+    return jax.tree_util.tree_map(pick, fresh, stepped)
+
+
+def make_rollout(env: Env, policy_apply, value_apply, n_steps: int, deterministic=False,
+                 keep_physics=False):
+    """rollout(params, runner, policy_params, value_params, norm, sigma, key) ->
+    (runner, batch, raw_obs, episodes, metrics, physics-or-None); see the module docstring."""
+    batched_step = jax.vmap(env.step, in_axes=(None, 0, 0))
+    batched_reset = jax.vmap(env.reset, in_axes=(None, 0))
+
+    def rollout(params, runner: Runner, policy_params, value_params, norm: RunningNorm, sigma,
+                key):
+        def control_step(carry: Runner, step_key):
+            envs = carry.envs
+            obs = norm.normalize(envs.obs)
+            distribution = action_distribution(policy_apply(policy_params, obs), sigma)
+            action = distribution.mode() if deterministic else distribution.sample(
+                seed=step_key)
+            stepped = batched_step(params, envs, action)
+            done = stepped.terminated | stepped.truncated
+            episode_return = carry.episode_return + stepped.reward
+            episode_length = carry.episode_length + 1
+            reset_keys, next_keys = jnp.moveaxis(jax.vmap(jax.random.split)(stepped.key), 1, 0)
+            fresh = batched_reset(params, reset_keys)
+            next_envs = _select(done, fresh, stepped.replace(key=next_keys))
+            record = (
+                Batch(obs, action, distribution.log_prob(action), stepped.reward,
+                      value_apply(value_params, obs),
+                      value_apply(value_params, norm.normalize(stepped.obs)),
+                      stepped.terminated, stepped.truncated),
+                envs.obs,
+                Episodes(done, jnp.where(done, episode_return, 0.0),
+                         jnp.where(done, episode_length, 0)),
+                stepped.metrics,
+                stepped.physics if keep_physics else None,
+            )
+            zero = jnp.zeros_like
+            carry = Runner(next_envs, jnp.where(done, zero(episode_return), episode_return),
+                           jnp.where(done, zero(episode_length), episode_length))
+            return carry, record
+
+        runner, (batch, raw_obs, episodes, metrics, physics) = jax.lax.scan(
+            control_step, runner, jax.random.split(key, n_steps))
+        return runner, batch, raw_obs, episodes, metrics, physics
+
+    return rollout
+
+
+def episode_summary(episodes: Episodes):
+    """Mean return and length of the episodes that ended (NaN when none did), and their count."""
+    count = jnp.sum(episodes.ended)
+    denominator = jnp.maximum(count, 1)
+    nan = jnp.nan
+    return (jnp.where(count > 0, jnp.sum(episodes.returns) / denominator, nan),
+            jnp.where(count > 0, jnp.sum(episodes.lengths) / denominator, nan), count)

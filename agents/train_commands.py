@@ -1,0 +1,177 @@
+"""`takeoff train`, `takeoff eval` and `takeoff plot`: training runs from TOML configs.
+
+A run directory holds the resolved config (`config.json`), `metrics.jsonl` (one line per
+iteration), `checkpoint.msgpack` (written atomically) and `learning_curve.png`.
+"""
+
+import dataclasses
+import functools
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from agents import config as config_io
+from agents import trainer as trainer_lib
+from agents.datadir import data_dir_from
+from agents.ppo import PPOSettings
+from agents.rollout import make_rollout, start_runner
+from agents.tasks.imitation import ImitationEnv, ImitationSettings
+from agents.tasks.reach import ReachEnv, ReachSettings
+from agents.trainer import RunSettings
+from jaxsim.atomic import write_text_atomic
+
+TASKS = ("imitation", "reach")
+CONFIG = "config.json"
+CURVE = "learning_curve.png"
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    run: RunSettings = field(default_factory=RunSettings)
+    ppo: PPOSettings = field(default_factory=PPOSettings)
+    imitation: ImitationSettings = field(default_factory=ImitationSettings)
+    reach: ReachSettings = field(default_factory=ReachSettings)
+
+    def __post_init__(self):
+        if self.run.task not in TASKS:
+            raise ValueError(f"run.task must be one of {', '.join(TASKS)}; got "
+                             f"{self.run.task!r}")
+
+
+def make_env(config: TrainConfig, data_dir=None):
+    if config.run.task == "reach":
+        return ReachEnv(config.reach)
+    return ImitationEnv(config.imitation, data_dir_from(data_dir))
+
+
+def make_trainer(config: TrainConfig, data_dir=None) -> trainer_lib.Trainer:
+    """The trainer of a config. Configs that differ only in how long the loop runs share one
+    trainer, and so its compiled iteration (a resumed run does not compile again)."""
+    loop_only = dict(iterations=1, checkpoint_every=1, progress_every=1, time_limit_minutes=0.0)
+    compiled = _compiled_trainer(dataclasses.replace(
+        config, run=dataclasses.replace(config.run, **loop_only)), data_dir)
+    return compiled.with_run_settings(config.run)
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled_trainer(config: TrainConfig, data_dir) -> trainer_lib.Trainer:
+    env = make_env(config, data_dir)
+    return trainer_lib.Trainer(env, env.default_params(), config.run, config.ppo)
+
+
+def load_run_config(run_dir) -> TrainConfig:
+    path = Path(run_dir) / CONFIG
+    if not path.exists():
+        raise config_io.ConfigError(f"{path}: missing; is {run_dir} a training run directory?")
+    return config_io.build(TrainConfig, json.loads(path.read_text()), str(path))
+
+
+def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=None,
+          echo=print):
+    """Start a run from a config (in out_dir, default runs/<config name>) or resume one."""
+    if resume is not None:
+        run_dir = Path(resume)
+        config = load_run_config(run_dir)
+        if overrides:
+            config = config_io.build(TrainConfig, _with_overrides(config, overrides, run_dir),
+                                     str(run_dir / CONFIG))
+    else:
+        config = config_io.load(config_path, TrainConfig, overrides)
+        run_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
+        if (run_dir / trainer_lib.CHECKPOINT).exists():
+            raise config_io.ConfigError(f"{run_dir} already holds a run; resume it with "
+                                        f"`takeoff train --resume {run_dir}` or pick --out")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(run_dir / CONFIG, json.dumps(dataclasses.asdict(config), indent=2) + "\n")
+    trainer = make_trainer(config, data_dir)
+    state = trainer.init()
+    if resume is not None:
+        state = trainer_lib.load_checkpoint(state, run_dir)
+        done = trainer_lib.completed_iterations(state)
+        trainer_lib.trim_metrics(run_dir, done)
+        echo(f"resuming {run_dir} at iteration {done}")
+    s = config.run
+    echo(f"training {s.task}: {s.envs} environments × {s.steps_per_iteration} steps = "
+         f"{s.samples_per_iteration} samples per iteration, {s.iterations} iterations → {run_dir}")
+    try:
+        state = trainer_lib.run(trainer, state, run_dir, echo)
+    finally:
+        plot(run_dir, quiet=True)
+    return trainer, state
+
+
+def _with_overrides(config, overrides, run_dir):
+    data = json.loads(json.dumps(dataclasses.asdict(config)))    # tuples become lists
+    for override in overrides:
+        config_io.apply_override(data, override, run_dir / CONFIG)
+    return data
+
+
+def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=print):
+    """Run the deterministic policy (the Gaussian's mean) for `episodes` episodes from random
+    starts; report the mean return, length and task metrics over each first episode. Returns
+    the summary, the environment and the poses of episode 0 (steps, nq)."""
+    config = load_run_config(run_dir)
+    trainer = make_trainer(config, data_dir)
+    state = trainer_lib.load_checkpoint(trainer.init(), run_dir)
+    env = trainer.env
+    rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply,
+                                   env.episode_steps, deterministic=True, keep_physics=True))
+    key = jax.random.PRNGKey(config.run.seed + 1)
+    runner = start_runner(env, trainer.env_params, key, episodes)
+    p = state.ppo
+    _, batch, _, records, metrics, physics = rollout(
+        trainer.env_params, runner, p.policy_params, p.value_params, state.norm,
+        trainer.sigma(p.samples), key)
+    first = _first_episode_mask(np.asarray(records.ended))
+    steps = first.sum(0)
+    summary = {"episodes": episodes,
+               "return": float(np.mean((np.asarray(batch.reward) * first).sum(0))),
+               "episode_length": float(steps.mean()),
+               "terminated": float((np.asarray(batch.terminated) * first).any(0).mean()),
+               **{k: float(np.sum(np.asarray(v) * first) / max(first.sum(), 1))
+                  for k, v in metrics.items()}}
+    echo(json.dumps(summary, indent=2))
+    poses = np.asarray(physics.q)[:int(steps[0]), 0]
+    if render_path is not None:
+        from jaxsim import render
+        render.animation(env.model, poses, render_path, world=env.world,
+                         fps=1.0 / env.control_dt)
+        echo(f"animation of episode 0 ({len(poses)} steps) → {render_path}")
+    return summary, env, poses
+
+
+def _first_episode_mask(ended):
+    """(T, N) 1 for the steps of each environment's first episode (up to and including the
+    step where it ended), 0 after."""
+    before = np.cumsum(ended, axis=0) - ended
+    return (before == 0).astype(float)
+
+
+def plot(run_dir, quiet=False):
+    """The learning curve (return and episode length against samples) as a PNG."""
+    run_dir = Path(run_dir)
+    try:
+        from jaxsim import render
+        plt = render.pyplot()
+    except ImportError as error:
+        if not quiet:
+            raise SystemExit(f"takeoff plot: {error}")
+        return None
+    records = trainer_lib.read_metrics(run_dir)
+    if not records:
+        return None
+    samples = np.array([r["samples"] for r in records], float)
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.5))
+    for ax, key, label in ((axes[0], "return", "mean episode return"),
+                           (axes[1], "episode_length", "mean episode length (steps)")):
+        values = np.array([np.nan if r.get(key) is None else r[key] for r in records], float)
+        ax.plot(samples, values, lw=1)
+        ax.set_xlabel("samples")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    render.save_figure(fig, run_dir / CURVE, title=str(run_dir), dpi=110)
+    return run_dir / CURVE

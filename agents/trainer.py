@@ -1,0 +1,224 @@
+"""PPO training as one compiled iteration, and the run directory around it (thesis §3.4.1).
+
+`Trainer(env, settings)` builds `iteration(state) -> (state, metrics)`: a rollout of
+`steps_per_iteration` control steps for `envs` environments, the observation statistics merged
+in, then the PPO update — all one jitted function. `TrainState` holds everything that evolves
+(networks, optimisers, observation statistics, environments, PRNG key), so a checkpoint is one
+msgpack file and resuming from it continues bit for bit.
+
+The Python loop in `run` only logs (`metrics.jsonl`, one line per iteration), shows progress,
+checkpoints atomically every `checkpoint_every` iterations and at the end, and on Ctrl-C saves
+a checkpoint before it stops.
+"""
+
+import copy
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import flax.serialization
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from agents import rollout as rollout_lib
+from agents.networks import PolicyNetwork, ValueNetwork, sigma_at
+from agents.ppo import PPOSettings, PPOState, RunningNorm, make_ppo
+from jaxsim.atomic import atomic_path
+
+CHECKPOINT = "checkpoint.msgpack"
+METRICS = "metrics.jsonl"
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """The `[run]` config section: the size and length of a training run."""
+
+    task: str = "imitation"
+    envs: int = 256                   # environments stepped in parallel
+    steps_per_iteration: int = 16     # control steps per environment per iteration
+    iterations: int = 1000
+    seed: int = 0
+    checkpoint_every: int = 50        # iterations
+    progress_every: int = 1           # iterations between progress-line updates
+    time_limit_minutes: float = 0.0   # stop (with a checkpoint) after this long; 0: no limit
+
+    def __post_init__(self):
+        for name in ("envs", "steps_per_iteration", "iterations", "checkpoint_every",
+                     "progress_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1; got {getattr(self, name)}")
+        if not self.time_limit_minutes >= 0:
+            raise ValueError(f"time_limit_minutes must be ≥ 0; got {self.time_limit_minutes}")
+
+    @property
+    def samples_per_iteration(self) -> int:
+        return self.envs * self.steps_per_iteration
+
+
+@dataclass(frozen=True)
+class TrainState:
+    ppo: PPOState
+    norm: RunningNorm
+    runner: rollout_lib.Runner
+    key: jax.Array
+
+
+jax.tree_util.register_dataclass(TrainState, data_fields=["ppo", "norm", "runner", "key"],
+                                 meta_fields=[])
+
+
+class Trainer:
+    """The compiled pieces of one training setup: init, iteration and evaluation rollouts."""
+
+    def __init__(self, env, env_params, run: RunSettings, ppo: PPOSettings):
+        self.env, self.env_params, self.run_settings, self.ppo_settings = env, env_params, run, ppo
+        self.policy = PolicyNetwork(env.action_size, tuple(ppo.hidden))
+        self.value = ValueNetwork(tuple(ppo.hidden))
+        self._ppo_init, self._ppo_update = make_ppo(env.observation_size, env.action_size, ppo)
+        self._rollout = rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
+                                                 run.steps_per_iteration)
+        self.iteration = jax.jit(self._iteration)
+
+    def with_run_settings(self, run: RunSettings) -> "Trainer":
+        """The same compiled trainer with other loop settings (iterations, checkpointing);
+        the settings that shape the computation must be equal."""
+        same = ("task", "envs", "steps_per_iteration", "seed")
+        if any(getattr(run, k) != getattr(self.run_settings, k) for k in same):
+            raise ValueError("with_run_settings cannot change " + ", ".join(same))
+        twin = copy.copy(self)
+        twin.run_settings = run
+        return twin
+
+    def policy_apply(self, params, obs):
+        return self.policy.apply({"params": params}, obs)
+
+    def value_apply(self, params, obs):
+        return self.value.apply({"params": params}, obs)
+
+    def sigma(self, samples):
+        s = self.ppo_settings
+        return sigma_at(samples, s.sigma_start, s.sigma_end, s.sigma_horizon)
+
+    def init(self) -> TrainState:
+        key = jax.random.PRNGKey(self.run_settings.seed)
+        ppo_key, env_key, key = jax.random.split(key, 3)
+        runner = rollout_lib.start_runner(self.env, self.env_params, env_key,
+                                          self.run_settings.envs)
+        norm = RunningNorm.zeros(self.env.observation_size, runner.envs.obs.dtype)
+        return TrainState(self._ppo_init(ppo_key), norm, runner, key)
+
+    def _iteration(self, state: TrainState):
+        key, rollout_key, update_key = jax.random.split(state.key, 3)
+        p = state.ppo
+        runner, batch, raw_obs, episodes, env_metrics, _ = self._rollout(
+            self.env_params, state.runner, p.policy_params, p.value_params, state.norm,
+            self.sigma(p.samples), rollout_key)
+        norm = state.norm.update(raw_obs)
+        ppo_state, metrics = self._ppo_update(p, batch, update_key)
+        mean_return, mean_length, finished = rollout_lib.episode_summary(episodes)
+        metrics = {**metrics, "return": mean_return, "episode_length": mean_length,
+                   "episodes": finished, "reward": jnp.mean(batch.reward),
+                   **{f"env/{k}": jnp.mean(v) for k, v in env_metrics.items()}}
+        return TrainState(ppo_state, norm, runner, key), metrics
+
+
+# ---- Checkpoints -------------------------------------------------------------------------------
+
+def save_checkpoint(state: TrainState, run_dir):
+    """The state's leaves (arrays, in pytree order) as msgpack, written atomically."""
+    leaves = [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(jax.device_get(state))]
+    with atomic_path(Path(run_dir) / CHECKPOINT) as tmp:
+        Path(tmp).write_bytes(flax.serialization.msgpack_serialize(leaves))
+
+
+def load_checkpoint(template: TrainState, run_dir) -> TrainState:
+    """A checkpoint read into the structure of `template` (a fresh `Trainer.init()` of the same
+    config); leaves that do not match in number, shape or dtype are an error."""
+    path = Path(run_dir) / CHECKPOINT
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no checkpoint to resume from")
+    leaves, treedef = jax.tree_util.tree_flatten(template)
+    stored = flax.serialization.msgpack_restore(path.read_bytes())
+    if len(stored) != len(leaves) or any(
+            np.shape(a) != np.shape(b) or np.asarray(a).dtype != np.asarray(b).dtype
+            for a, b in zip(stored, leaves)):
+        raise ValueError(f"{path}: the checkpoint does not fit this run's config (networks, "
+                         "environments or task changed?)")
+    return jax.tree_util.tree_unflatten(treedef, [jnp.asarray(a) for a in stored])
+
+
+def completed_iterations(state: TrainState) -> int:
+    return int(state.ppo.iteration)
+
+
+# ---- The loop --------------------------------------------------------------------------------
+
+def _line(record, total, started, first):
+    elapsed = time.perf_counter() - started
+    done = record["iteration"] - first
+    left = elapsed / max(done, 1) * (total - record["iteration"])
+    ret = record["return"]
+    return (f"iter {record['iteration']:>5}/{total}  {record['samples_per_second']:>8.0f} "
+            f"samples/s  return {'—' if ret is None else f'{ret:8.3f}'}  "
+            f"len {record['episode_length'] or 0:6.1f}  σ {record['sigma']:.3f}  "
+            f"left {left / 60:5.1f} min")
+
+
+def _json_value(value):
+    value = float(value)
+    return None if not np.isfinite(value) else value
+
+
+def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
+    """Train until `iterations` are done (or the time limit passes), logging, showing progress
+    and checkpointing in run_dir; Ctrl-C checkpoints and stops."""
+    run_dir = Path(run_dir)
+    settings = trainer.run_settings
+    first = completed_iterations(state)
+    started = time.perf_counter()
+    last_time = started
+    try:
+        with open(run_dir / METRICS, "a", encoding="utf-8") as log:
+            for _ in range(first, settings.iterations):
+                state, metrics = trainer.iteration(state)
+                metrics = jax.device_get(metrics)
+                now = time.perf_counter()
+                record = {"iteration": completed_iterations(state),
+                          "samples": int(state.ppo.samples),
+                          "samples_per_second": settings.samples_per_iteration / (now - last_time),
+                          "seconds": now - started,
+                          **{k: _json_value(v) for k, v in metrics.items()}}
+                last_time = now
+                log.write(json.dumps(record) + "\n")
+                log.flush()
+                if record["iteration"] % settings.progress_every == 0:
+                    echo(_line(record, settings.iterations, started, first))
+                if record["iteration"] % settings.checkpoint_every == 0:
+                    save_checkpoint(state, run_dir)
+                if settings.time_limit_minutes and now - started > 60 * settings.time_limit_minutes:
+                    echo(f"time limit of {settings.time_limit_minutes:g} min reached")
+                    break
+    except KeyboardInterrupt:
+        echo(f"\ninterrupted: checkpoint at iteration {completed_iterations(state)} in {run_dir}")
+        save_checkpoint(state, run_dir)
+        raise
+    save_checkpoint(state, run_dir)
+    return state
+
+
+def read_metrics(run_dir) -> list[dict]:
+    path = Path(run_dir) / METRICS
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def trim_metrics(run_dir, iterations: int):
+    """Drop log lines past `iterations` (written after the last checkpoint of a killed run), so
+    a resumed run's log has each iteration once."""
+    path = Path(run_dir) / METRICS
+    if not path.exists():
+        return
+    kept = [r for r in read_metrics(run_dir) if r["iteration"] <= iterations]
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text("".join(json.dumps(r) + "\n" for r in kept), encoding="utf-8")

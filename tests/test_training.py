@@ -1,0 +1,139 @@
+"""Training runs: the rollout's bookkeeping, learning on a small task, resume bit for bit, the
+run directory and the command line."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from agents import cli, train_commands, trainer as trainer_lib
+from agents.config import ConfigError
+from agents.ppo import PPOSettings
+from agents.rollout import make_rollout, start_runner
+from agents.tasks.reach import ReachEnv, ReachSettings
+
+CONFIG = "configs/reach.toml"
+
+
+def small_run(tmp_path, iterations, name="run", extra=(), echo=lambda *_: None):
+    """A short run of the reach config; every small run shares one compiled trainer."""
+    overrides = [f"run.iterations={iterations}", "run.envs=16", "run.steps_per_iteration=16",
+                 "run.checkpoint_every=2", "ppo.hidden=[16, 16]", "ppo.minibatch_size=64",
+                 *extra]
+    return train_commands.train(CONFIG, tmp_path / name, overrides, echo=echo)
+
+
+def test_rollout_resets_finished_episodes_and_bootstraps_from_the_last_observation():
+    env = ReachEnv(ReachSettings(episode_seconds=0.2), dtype=jnp.float64)   # 6 control steps
+    trainer = trainer_lib.Trainer(env, env.default_params(),
+                                  trainer_lib.RunSettings(task="reach", envs=3,
+                                                          steps_per_iteration=14),
+                                  PPOSettings(hidden=(8,), minibatch_size=8))
+    state = trainer.init()
+    rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply, 14))
+    runner = start_runner(env, trainer.env_params, jax.random.PRNGKey(1), 3)
+    p = state.ppo
+    _, batch, _, episodes, _, _ = rollout(
+        trainer.env_params, runner, p.policy_params, p.value_params, state.norm, 0.3,
+        jax.random.PRNGKey(2))
+    truncated = np.asarray(batch.truncated)
+    # Every environment is cut at its 6th and 12th step, never terminated (reaching never is).
+    assert np.array_equal(np.flatnonzero(truncated[:, 0]), [5, 11])
+    assert not np.asarray(batch.terminated).any()
+    assert np.array_equal(np.asarray(episodes.ended), truncated)
+    np.testing.assert_array_equal(np.asarray(episodes.lengths)[5], [6, 6, 6])
+    rewards = np.asarray(batch.reward)
+    np.testing.assert_allclose(np.asarray(episodes.returns)[11], rewards[6:12].sum(0),
+                               rtol=1e-12)
+    # next_value is the value of the step's own next observation: within an episode that is
+    # the next step's observation, across a reset it is the old episode's last one.
+    values = np.asarray(batch.value)
+    next_values = np.asarray(batch.next_value)
+    np.testing.assert_allclose(next_values[:5], values[1:6], rtol=1e-12)   # within an episode
+    assert np.all(np.abs(next_values[5] - values[6]) > 0)                   # across the reset
+
+
+def test_ppo_learns_to_reach(tmp_path):
+    """Learning happens: the mean return of reaching rises from ~1 (random) past 15 of 30."""
+    _, state = train_commands.train(CONFIG, tmp_path / "reach", ["run.iterations=160"],
+                                    echo=lambda *_: None)
+    records = trainer_lib.read_metrics(tmp_path / "reach")
+    first, last = records[0], records[-10:]
+    assert first["return"] < 5.0
+    assert np.mean([r["return"] for r in last]) > 15.0
+    assert np.mean([r["env/distance"] for r in last]) < 0.25
+
+
+def test_resumed_run_equals_an_uninterrupted_one_bit_for_bit(tmp_path):
+    _, straight = small_run(tmp_path, 4, "straight")
+    small_run(tmp_path, 2, "resumed")
+    _, resumed = train_commands.train(resume=tmp_path / "resumed",
+                                      overrides=["run.iterations=4"], echo=lambda *_: None)
+    for a, b in zip(jax.tree_util.tree_leaves(straight), jax.tree_util.tree_leaves(resumed)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    lines = trainer_lib.read_metrics(tmp_path / "resumed")
+    assert [r["iteration"] for r in lines] == [1, 2, 3, 4]
+
+
+def test_run_directory_metrics_and_curve(tmp_path):
+    small_run(tmp_path, 3)
+    run_dir = tmp_path / "run"
+    for name in ("config.json", "metrics.jsonl", "checkpoint.msgpack", "learning_curve.png"):
+        assert (run_dir / name).exists(), name
+    record = trainer_lib.read_metrics(run_dir)[-1]
+    for key in ("samples", "samples_per_second", "return", "episode_length", "policy_loss",
+                "value_loss", "sigma", "approx_kl", "clip_fraction"):
+        assert key in record, key
+    assert record["samples"] == 3 * 16 * 16
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["run"]["envs"] == 16 and config["ppo"]["hidden"] == [16, 16]
+    with pytest.raises(ConfigError, match="already holds a run"):
+        small_run(tmp_path, 3)
+
+
+def test_ctrl_c_saves_a_checkpoint_that_resumes(tmp_path):
+    calls = []
+
+    def interrupt_on_second(line):
+        calls.append(line)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        small_run(tmp_path, 5, extra=["run.checkpoint_every=100"], echo=interrupt_on_second)
+    trainer, state = train_commands.train(resume=tmp_path / "run", echo=lambda *_: None)
+    assert int(state.ppo.iteration) == 5
+    assert [r["iteration"] for r in trainer_lib.read_metrics(tmp_path / "run")] == [1, 2, 3, 4, 5]
+
+
+def test_eval_reports_and_renders(tmp_path, capsys):
+    small_run(tmp_path, 2)
+    assert cli.main(["eval", str(tmp_path / "run"), "--episodes", "3",
+                     "--render", str(tmp_path / "reach.gif")]) == 0
+    out = capsys.readouterr().out
+    summary = json.loads(out[out.index("{"): out.rindex("}") + 1])
+    assert summary["episodes"] == 3 and summary["episode_length"] == 30
+    assert (tmp_path / "reach.gif").stat().st_size > 1000
+    assert cli.main(["plot", str(tmp_path / "run")]) == 0
+
+
+@pytest.mark.parametrize("override, message", [
+    ("run.envs=0", "envs must be at least 1"),
+    ("run.task=juggling", "run.task must be one of"),
+    ("ppo.lam=1.5", "lam must be in"),
+    ("ppo.clip=true", "'ppo.clip' must be a float"),
+    ("reach.sim_hz=100.0", "whole multiple"),
+    ("run.batch=3", "unknown key 'run.batch'"),
+])
+def test_config_errors_name_the_key(tmp_path, override, message):
+    with pytest.raises(SystemExit, match=message):
+        cli.main(["train", CONFIG, "--out", str(tmp_path / "r"), "--set", override])
+
+
+def test_train_needs_a_config_or_a_run_to_resume(tmp_path):
+    with pytest.raises(SystemExit, match="CONFIG"):
+        cli.main(["train"])
+    with pytest.raises(SystemExit, match="config.json"):
+        cli.main(["train", "--resume", str(tmp_path)])
