@@ -1,0 +1,124 @@
+"""Imitation of DeepMimic's walk with PPO on this machine: throughput, its split, and a timed run.
+
+    python benchmarks/imitation.py speed            # samples/s of the whole iteration, and the
+                                                    # time in the rollout (simulation) vs the update
+    python benchmarks/imitation.py train [--minutes 60]
+                                                    # train configs/imitate_walk.toml for that long,
+                                                    # evaluate, and write figures into docs/
+
+Needs the reference data (TAKEOFF_DATA, default ../shared/data).
+"""
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from agents import train_commands
+from agents import config as config_io
+from jaxsim import render
+from jaxsim.atomic import write_text_atomic
+from spd import machine_info
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG = ROOT / "configs" / "imitate_walk.toml"
+DOCS, RESULTS = ROOT / "docs", ROOT / "benchmarks" / "results"
+
+
+def data_dir() -> Path:
+    path = Path(os.environ.get("TAKEOFF_DATA", ROOT.parent / "shared" / "data"))
+    if not (path / "deepmimic").is_dir():
+        sys.exit(f"reference data not found in {path}; set TAKEOFF_DATA")
+    return path
+
+
+def _timed(fn, *args, repeats):
+    """Median seconds of `repeats` calls after a first (compiling) call; and that first call."""
+    start = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), first
+
+
+def speed(args):
+    config = config_io.load(CONFIG, train_commands.TrainConfig, args.set)
+    trainer = train_commands.make_trainer(config, data_dir())
+    state = trainer.init()
+    p = state.ppo
+    sigma = trainer.sigma(p.samples)
+    rollout = jax.jit(trainer._rollout)
+    rollout_args = (trainer.env_params, state.runner, p.policy_params, p.value_params,
+                    state.norm, sigma, state.key)
+    rollout_s, rollout_compile = _timed(rollout, *rollout_args, repeats=args.repeats)
+    batch = rollout(*rollout_args)[1]
+    update = jax.jit(trainer._ppo_update)
+    update_s, update_compile = _timed(update, p, batch, state.key, repeats=args.repeats)
+    iteration_s, iteration_compile = _timed(lambda s: trainer.iteration(s)[1], state,
+                                            repeats=args.repeats)
+    samples = config.run.samples_per_iteration
+    result = {"machine": machine_info(), "envs": config.run.envs,
+              "steps_per_iteration": config.run.steps_per_iteration,
+              "samples_per_iteration": samples,
+              "iteration_seconds": iteration_s, "samples_per_second": samples / iteration_s,
+              "rollout_seconds": rollout_s, "update_seconds": update_s,
+              "rollout_share": rollout_s / (rollout_s + update_s),
+              "compile_seconds": {"rollout": rollout_compile, "update": update_compile,
+                                  "iteration": iteration_compile}}
+    write_text_atomic(RESULTS / "imitation_speed.json", json.dumps(result, indent=2) + "\n")
+    print(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
+
+
+def train(args):
+    out = RESULTS / "imitate_walk"
+    if out.exists():
+        shutil.rmtree(out)
+    overrides = [f"run.time_limit_minutes={args.minutes}", "run.iterations=100000", *args.set]
+    start = time.perf_counter()
+    train_commands.train(CONFIG, out, overrides, data_dir=data_dir())
+    wall = time.perf_counter() - start
+    summary, env, poses = train_commands.evaluate(out, episodes=16, data_dir=data_dir())
+    shutil.copyfile(out / train_commands.CURVE, DOCS / "imitate_walk_curve.png")
+    shown = poses[: int(3.0 / env.control_dt)]
+    render.filmstrip(env.model, shown, DOCS / "imitate_walk_eval.png", world=env.world,
+                     n_panels=10, times=np.arange(len(shown)) * env.control_dt,
+                     title="deterministic policy after training (first 3 s of an evaluation "
+                           "episode)")
+    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    result = {"machine": machine_info(), "minutes": args.minutes, "wall_seconds": wall,
+              "iterations": records[-1]["iteration"], "samples": records[-1]["samples"],
+              "mean_samples_per_second": records[-1]["samples"] / records[-1]["seconds"],
+              "last_return": records[-1]["return"], "evaluation": summary}
+    write_text_atomic(RESULTS / "imitate_walk.json", json.dumps(result, indent=2) + "\n")
+    print(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("speed")
+    p.add_argument("--repeats", type=int, default=5)
+    p.set_defaults(run=speed)
+    p = sub.add_parser("train")
+    p.add_argument("--minutes", type=float, default=60.0)
+    p.set_defaults(run=train)
+    for p in sub.choices.values():
+        p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    args = parser.parse_args()
+    args.run(args)
+
+
+if __name__ == "__main__":
+    main()
