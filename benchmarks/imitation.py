@@ -11,10 +11,8 @@ Needs the reference data (TAKEOFF_DATA, default ../shared/data).
 
 import argparse
 import json
-import os
 import shutil
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -25,18 +23,11 @@ from agents import train_commands
 from agents import config as config_io
 from jaxsim import render
 from jaxsim.atomic import write_text_atomic
-from spd import machine_info
+from spd import machine_info, reference_data
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "imitate_walk.toml"
 DOCS, RESULTS = ROOT / "docs", ROOT / "benchmarks" / "results"
-
-
-def data_dir() -> Path:
-    path = Path(os.environ.get("TAKEOFF_DATA", ROOT.parent / "shared" / "data"))
-    if not (path / "deepmimic").is_dir():
-        sys.exit(f"reference data not found in {path}; set TAKEOFF_DATA")
-    return path
 
 
 def _timed(fn, *args, repeats):
@@ -54,7 +45,7 @@ def _timed(fn, *args, repeats):
 
 def speed(args):
     config = config_io.load(CONFIG, train_commands.TrainConfig, args.set)
-    trainer = train_commands.make_trainer(config, data_dir())
+    trainer = train_commands.make_trainer(config, reference_data("deepmimic"))
     state = trainer.init()
     p = state.ppo
     sigma = trainer.sigma(p.samples)
@@ -86,9 +77,10 @@ def train(args):
         shutil.rmtree(out)
     overrides = [f"run.time_limit_minutes={args.minutes}", "run.iterations=100000", *args.set]
     start = time.perf_counter()
-    train_commands.train(CONFIG, out, overrides, data_dir=data_dir())
+    data = reference_data("deepmimic")
+    train_commands.train(CONFIG, out, overrides, data_dir=data)
     wall = time.perf_counter() - start
-    summary, env, poses = train_commands.evaluate(out, episodes=16, data_dir=data_dir())
+    summary, env, poses = train_commands.evaluate(out, episodes=16, data_dir=data)
     shutil.copyfile(out / train_commands.CURVE, DOCS / "imitate_walk_curve.png")
     shown = poses[: int(3.0 / env.control_dt)]
     render.filmstrip(env.model, shown, DOCS / "imitate_walk_eval.png", world=env.world,

@@ -10,9 +10,7 @@ Needs the reference data (TAKEOFF_DATA, default ../shared/data) and matplotlib.
 
 import argparse
 import json
-import os
 import shutil
-import sys
 import time
 from pathlib import Path
 
@@ -22,7 +20,7 @@ from agents import pvae_commands
 from jaxsim import characters, motion, render
 from jaxsim.atomic import write_text_atomic
 from jaxsim.motion import retarget as rt
-from spd import machine_info
+from spd import machine_info, reference_data
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS, RESULTS = ROOT / "docs", ROOT / "benchmarks" / "results"
@@ -35,13 +33,6 @@ CLIPS = [
 BVH_SCALE = 0.0254 / 0.45    # cgspeed's CMU conversion keeps the ASF's length unit
 
 
-def data_dir() -> Path:
-    path = Path(os.environ.get("TAKEOFF_DATA", ROOT.parent / "shared" / "data"))
-    if not (path / "cmu").is_dir():
-        sys.exit(f"reference data not found in {path}; set TAKEOFF_DATA")
-    return path
-
-
 def load_source(kind, path):
     if kind == "bvh":
         return motion.load_bvh(path, length_scale=BVH_SCALE)
@@ -52,7 +43,7 @@ def load_source(kind, path):
 def retarget_figures(args):
     model = characters.humanoid()
     for figure, kind, name, rule, start, stop in CLIPS:
-        source = load_source(kind, data_dir() / name)
+        source = load_source(kind, reference_data("cmu") / name)
         result = rt.retarget(source, model, rule)
         _, starts, tips = motion.world_pose(source)
         bones = np.stack([starts, tips], 2) @ rule.facing.T * result.scale
@@ -74,7 +65,7 @@ def train_and_figures(args):
         shutil.rmtree(out)
     dataset_path = out / "poses.npz"
     start = time.perf_counter()
-    dataset, needed = pvae_commands.build_dataset(data_dir(), dataset_path)
+    dataset, needed = pvae_commands.build_dataset(reference_data("cmu"), dataset_path)
     build_seconds = time.perf_counter() - start
     start = time.perf_counter()
     result = pvae_commands.train(ROOT / "configs" / "pvae.toml", out / "run",

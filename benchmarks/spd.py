@@ -59,6 +59,16 @@ DEFAULT_JSON = Path(__file__).resolve().parent / "results" / "spd.json"
 # inputs
 
 
+def reference_data(needed: str) -> Path:
+    """The reference data directory (TAKEOFF_DATA, default ../shared/data beside the checkout);
+    exits with a message when its folder `needed` is missing."""
+    default = Path(__file__).resolve().parents[2] / "shared" / "data"
+    path = Path(os.environ.get("TAKEOFF_DATA", default))
+    if not (path / needed).is_dir():
+        sys.exit(f"reference data not found in {path} (no {needed}/); set TAKEOFF_DATA")
+    return path
+
+
 def random_pose(topology, rng, batch):
     """(batch, nq) valid poses: random root position and orientation, small joint rotations."""
     q = np.zeros((batch, topology.nq))

@@ -25,7 +25,6 @@ Run:  python benchmarks/tracking.py stability
 
 import argparse
 import json
-import os
 import shlex
 import statistics
 import sys
@@ -42,7 +41,7 @@ from jaxsim import characters, kinematics, motion, simulation, tracking  # noqa:
 from jaxsim.model import rest_pose  # noqa: E402
 from jaxsim.world import make_world  # noqa: E402
 from jaxsim.atomic import write_text_atomic  # noqa: E402
-from spd import compile_and_time, machine_info, markdown_table  # noqa: E402
+from spd import compile_and_time, machine_info, markdown_table, reference_data  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = {"600": 1 / 600, "300": 1 / 300, "240": 1 / 240, "120": 1 / 120, "60": 1 / 60,
@@ -50,16 +49,12 @@ STEPS = {"600": 1 / 600, "300": 1 / 300, "240": 1 / 240, "120": 1 / 120, "60": 1
 DIVERGED_M = 1.0
 
 
-def data_dir():
-    default = Path(__file__).resolve().parents[2] / "shared" / "data"
-    path = Path(os.environ.get("TAKEOFF_DATA", default))
-    if not (path / "deepmimic").is_dir():
-        sys.exit(f"reference data not found in {path}; set TAKEOFF_DATA")
-    return path / "deepmimic"
+def deepmimic_dir() -> Path:
+    return reference_data("deepmimic") / "deepmimic"
 
 
 def deepmimic(name, dtype):
-    dm = data_dir()
+    dm = deepmimic_dir()
     model = characters.load_deepmimic(dm / f"characters/{name}.txt",
                                       dm / f"controllers/{name}_ctrl.txt", dtype=dtype)
     return tracking.tracking_model(model)
@@ -87,7 +82,7 @@ def task(row, dtype):
         model = tracking.tracking_model(characters.snake(character, dtype=dtype))
         return model, motion.slither_clip(model), dt
     model = deepmimic(character, dtype)
-    return model, motion.load_motion(data_dir() / f"motions/{clip_name}.txt", model), dt
+    return model, motion.load_motion(deepmimic_dir() / f"motions/{clip_name}.txt", model), dt
 
 
 # ---------------------------------------------------------------------------------------------
@@ -102,7 +97,7 @@ def stability(args):
     for label, character, clip_name, effector in cases:
         for dtype in (jnp.float32, jnp.float64):
             model = deepmimic(character, dtype)
-            clip = motion.load_motion(data_dir() / f"motions/{clip_name}.txt", model)
+            clip = motion.load_motion(deepmimic_dir() / f"motions/{clip_name}.txt", model)
             world = world64.astype(dtype)
             for rate, dt in STEPS.items():
                 n = int(round(args.seconds / dt))
@@ -277,7 +272,7 @@ def filmstrip(args):
     from jaxsim import render
 
     model = deepmimic("humanoid3d", jnp.float32)
-    clip = motion.load_motion(data_dir() / "motions/humanoid3d_cartwheel.txt", model)
+    clip = motion.load_motion(deepmimic_dir() / "motions/humanoid3d_cartwheel.txt", model)
     world = make_world(joint_limits=False)
     dt = 1 / 600
     n = int(float(clip.duration) / dt)

@@ -254,9 +254,9 @@ def save_bvh(path, clip: SkeletonClip):
     Joints get identity rest frames: each one's rotation is its world rotation relative to its
     parent's, D_parentᵀ D_b (D = `world_deltas`), written as `Zrotation Yrotation Xrotation` in
     degrees; the root's OFFSET is its rest position, and its position channels its displacement
-    from there. Leaf bones end in an End Site at their tip; BVH has no place for other bones' tips, which a reader
-    takes to be the mean of their children's starts. Joints are written depth-first, which may
-    reorder the bones."""
+    from there. Leaf bones end in an End Site at their tip; BVH has no place for other bones'
+    tips, which a reader takes to be the mean of their children's starts. Joints are written
+    depth-first, which may reorder the bones."""
     path = os.fspath(path)
     skeleton = clip.skeleton
     if skeleton.parents.count(-1) != 1 or any(len(name.split()) != 1 for name in skeleton.names):
