@@ -112,7 +112,7 @@ def _cmd_eval(args):
 
     try:
         train_commands.evaluate(args.run_dir, args.episodes, args.render, args.data_dir)
-    except (ConfigError, DataDirError, FileNotFoundError) as error:
+    except (ConfigError, DataDirError, FileNotFoundError, ValueError) as error:
         raise SystemExit(f"takeoff eval: {error}")
 
 

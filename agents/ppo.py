@@ -8,13 +8,15 @@ regresses the TD(λ) targets A + V, which are the λ-returns. The policy's σ is
 annealed with the number of samples seen (`agents.networks.sigma_at`). Policy and value have
 their own Adam optimisers and learning rates.
 
-`make_ppo(obs_size, action_size, settings)` gives `init(key) -> PPOState` and the pure, jittable
+`make_ppo(obs_size, action_size, settings)` gives the networks' apply functions,
+`init(key) -> PPOState` and the pure, jittable
 `update(state, batch, key) -> (state, metrics)`. `RunningNorm` keeps the running observation
 statistics used to normalise the networks' inputs; `Batch.obs` holds the normalised inputs.
 """
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -172,9 +174,18 @@ def _normalised(advantage):
     return (advantage - advantage.mean()) / (advantage.std() + _ADVANTAGE_EPS)
 
 
-def make_ppo(obs_size: int, action_size: int, settings: PPOSettings):
-    """`init(key) -> PPOState` and the pure, jittable `update(state, batch, key) ->
-    (state, metrics)`: GAE advantages and TD(λ) targets of `batch`, then `settings.epochs`
+class PPO(NamedTuple):
+    """The networks' apply functions, `init(key, obs_dtype) -> PPOState` and `update`."""
+
+    policy_apply: Callable
+    value_apply: Callable
+    init: Callable
+    update: Callable
+
+
+def make_ppo(obs_size: int, action_size: int, settings: PPOSettings) -> PPO:
+    """The policy and value networks, `init` and the pure, jittable `update(state, batch, key)
+    -> (state, metrics)`: GAE advantages and TD(λ) targets of `batch`, then `settings.epochs`
     epochs, each a shuffle and a scan of one policy and one value Adam step per minibatch of
     `settings.minibatch_size` flattened (T·N) samples (the remainder is dropped; advantages are
     normalised per minibatch). Metrics are means over all minibatches."""
@@ -185,14 +196,14 @@ def make_ppo(obs_size: int, action_size: int, settings: PPOSettings):
     value_optimiser = _optimiser(settings.value_lr, settings.max_grad_norm)
     minibatch = settings.minibatch_size
 
-    def init(key):
+    def init(key, obs_dtype=jnp.float32):
         policy_key, value_key = jax.random.split(key)
-        dummy = jnp.zeros((1, obs_size))
+        dummy = jnp.zeros((1, obs_size), obs_dtype)
         policy_params = policy_net.init(policy_key, dummy)["params"]
         value_params = value_net.init(value_key, dummy)["params"]
         return PPOState(policy_params, value_params, policy_optimiser.init(policy_params),
-                        value_optimiser.init(value_params), jnp.zeros((), int),
-                        jnp.zeros((), int))
+                        value_optimiser.init(value_params), jnp.zeros((), jnp.int32),
+                        jnp.zeros((), jnp.int32))
 
     def minibatch_step(sigma, carry, data):
         policy_params, value_params, policy_opt_state, value_opt_state = carry
@@ -216,9 +227,9 @@ def make_ppo(obs_size: int, action_size: int, settings: PPOSettings):
         if n_minibatches == 0:
             raise ValueError(f"a batch of {count} samples ({steps} steps × {envs} envs) is "
                              f"smaller than one minibatch (minibatch_size = {minibatch})")
-        advantage = gae(batch.reward, batch.value, batch.next_value, batch.terminated,
-                        batch.truncated, settings.gamma, settings.lam)
-        target = advantage + batch.value          # the TD(λ) targets, as td_lambda_targets
+        target = td_lambda_targets(batch.reward, batch.value, batch.next_value,
+                                   batch.terminated, batch.truncated, settings.gamma, settings.lam)
+        advantage = target - batch.value
         flat = jax.tree_util.tree_map(lambda x: x.reshape(count, *x.shape[2:]),
                                       (batch.obs, batch.action, batch.log_prob, advantage, target))
         sigma = sigma_at(state.samples, settings.sigma_start, settings.sigma_end,
@@ -240,7 +251,7 @@ def make_ppo(obs_size: int, action_size: int, settings: PPOSettings):
                          iteration=state.iteration + 1)
         return state, metrics
 
-    return init, update
+    return PPO(policy_apply, value_apply, init, update)
 
 
 @_register

@@ -35,21 +35,19 @@ jax.tree_util.register_dataclass(Episodes, data_fields=["ended", "returns", "len
 
 @dataclasses.dataclass(frozen=True)
 class Runner:
-    """What carries over between rollouts: the environments and their running episode sums."""
+    """What carries over between rollouts: the environments and their running episode returns
+    (their lengths are the environments' own step counts)."""
 
-    envs: EnvState            # batched
+    envs: EnvState             # batched
     episode_return: jax.Array  # (N,)
-    episode_length: jax.Array  # (N,)
 
 
-jax.tree_util.register_dataclass(Runner, data_fields=["envs", "episode_return",
-                                                      "episode_length"], meta_fields=[])
+jax.tree_util.register_dataclass(Runner, data_fields=["envs", "episode_return"], meta_fields=[])
 
 
 def start_runner(env: Env, params, key, n_envs: int) -> Runner:
     envs = jax.vmap(env.reset, in_axes=(None, 0))(params, jax.random.split(key, n_envs))
-    zeros = jnp.zeros(n_envs, envs.reward.dtype)
-    return Runner(envs, zeros, jnp.zeros(n_envs, jnp.int32))
+    return Runner(envs, jnp.zeros(n_envs, envs.reward.dtype))
 
 
 def _select(done, fresh, stepped):
@@ -77,7 +75,6 @@ def make_rollout(env: Env, policy_apply, value_apply, n_steps: int, deterministi
             stepped = batched_step(params, envs, action)
             done = stepped.terminated | stepped.truncated
             episode_return = carry.episode_return + stepped.reward
-            episode_length = carry.episode_length + 1
             reset_keys, next_keys = jnp.moveaxis(jax.vmap(jax.random.split)(stepped.key), 1, 0)
             fresh = batched_reset(params, reset_keys)
             next_envs = _select(done, fresh, stepped.replace(key=next_keys))
@@ -88,13 +85,11 @@ def make_rollout(env: Env, policy_apply, value_apply, n_steps: int, deterministi
                       stepped.terminated, stepped.truncated),
                 envs.obs,
                 Episodes(done, jnp.where(done, episode_return, 0.0),
-                         jnp.where(done, episode_length, 0)),
+                         jnp.where(done, stepped.steps, 0)),
                 stepped.metrics,
                 stepped.physics if keep_physics else None,
             )
-            zero = jnp.zeros_like
-            carry = Runner(next_envs, jnp.where(done, zero(episode_return), episode_return),
-                           jnp.where(done, zero(episode_length), episode_length))
+            carry = Runner(next_envs, jnp.where(done, 0.0, episode_return))
             return carry, record
 
         runner, (batch, raw_obs, episodes, metrics, physics) = jax.lax.scan(

@@ -84,15 +84,17 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
         if (run_dir / trainer_lib.CHECKPOINT).exists():
             raise config_io.ConfigError(f"{run_dir} already holds a run; resume it with "
                                         f"`takeoff train --resume {run_dir}` or pick --out")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(run_dir / CONFIG, json.dumps(dataclasses.asdict(config), indent=2) + "\n")
     trainer = make_trainer(config, data_dir)
     state = trainer.init()
-    if resume is not None:
-        state = trainer_lib.load_checkpoint(state, run_dir)
+    if resume is not None:     # the checkpoint must fit (overrides included) before anything
+        state = trainer_lib.load_checkpoint(state, run_dir)        # in run_dir is rewritten
         done = trainer_lib.completed_iterations(state)
-        trainer_lib.trim_metrics(run_dir, done)
         echo(f"resuming {run_dir} at iteration {done}")
+    else:
+        done = 0                                  # a run that died before its first checkpoint
+    run_dir.mkdir(parents=True, exist_ok=True)    # left lines that do not count
+    trainer_lib.trim_metrics(run_dir, done)
+    write_text_atomic(run_dir / CONFIG, json.dumps(dataclasses.asdict(config), indent=2) + "\n")
     s = config.run
     echo(f"training {s.task}: {s.envs} environments × {s.steps_per_iteration} steps = "
          f"{s.samples_per_iteration} samples per iteration, {s.iterations} iterations → {run_dir}")
@@ -120,12 +122,12 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     env = trainer.env
     rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply,
                                    env.episode_steps, deterministic=True, keep_physics=True))
-    key = jax.random.PRNGKey(config.run.seed + 1)
-    runner = start_runner(env, trainer.env_params, key, episodes)
+    start_key, rollout_key = jax.random.split(jax.random.PRNGKey(config.run.seed + 1))
+    runner = start_runner(env, trainer.env_params, start_key, episodes)
     p = state.ppo
     _, batch, _, records, metrics, physics = rollout(
         trainer.env_params, runner, p.policy_params, p.value_params, state.norm,
-        trainer.sigma(p.samples), key)
+        trainer.sigma(p.samples), rollout_key)
     first = _first_episode_mask(np.asarray(records.ended))
     steps = first.sum(0)
     summary = {"episodes": episodes,
@@ -173,5 +175,5 @@ def plot(run_dir, quiet=False):
         ax.set_xlabel("samples")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    render.save_figure(fig, run_dir / CURVE, title=str(run_dir), dpi=110)
+    render.save_figure(fig, run_dir / CURVE, title=f"{run_dir.name}: learning curve", dpi=110)
     return run_dir / CURVE

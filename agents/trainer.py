@@ -1,6 +1,6 @@
 """PPO training as one compiled iteration, and the run directory around it (thesis §3.4.1).
 
-`Trainer(env, settings)` builds `iteration(state) -> (state, metrics)`: a rollout of
+`Trainer(env, env_params, run, ppo)` builds `iteration(state) -> (state, metrics)`: a rollout of
 `steps_per_iteration` control steps for `envs` environments, the observation statistics merged
 in, then the PPO update — all one jitted function. `TrainState` holds everything that evolves
 (networks, optimisers, observation statistics, environments, PRNG key), so a checkpoint is one
@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents import rollout as rollout_lib
-from agents.networks import PolicyNetwork, ValueNetwork, sigma_at
+from agents.networks import sigma_at
 from agents.ppo import PPOSettings, PPOState, RunningNorm, make_ppo
 from jaxsim.atomic import atomic_path
 
@@ -70,15 +70,15 @@ jax.tree_util.register_dataclass(TrainState, data_fields=["ppo", "norm", "runner
 
 
 class Trainer:
-    """The compiled pieces of one training setup: init, iteration and evaluation rollouts."""
+    """One training setup: the networks and PPO (`ppo`), the rollout, `init` and the jitted
+    `iteration`."""
 
     def __init__(self, env, env_params, run: RunSettings, ppo: PPOSettings):
         self.env, self.env_params, self.run_settings, self.ppo_settings = env, env_params, run, ppo
-        self.policy = PolicyNetwork(env.action_size, tuple(ppo.hidden))
-        self.value = ValueNetwork(tuple(ppo.hidden))
-        self._ppo_init, self._ppo_update = make_ppo(env.observation_size, env.action_size, ppo)
-        self._rollout = rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
-                                                 run.steps_per_iteration)
+        self.ppo = make_ppo(env.observation_size, env.action_size, ppo)
+        self.policy_apply, self.value_apply = self.ppo.policy_apply, self.ppo.value_apply
+        self.rollout = rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
+                                                run.steps_per_iteration)
         self.iteration = jax.jit(self._iteration)
 
     def with_run_settings(self, run: RunSettings) -> "Trainer":
@@ -91,12 +91,6 @@ class Trainer:
         twin.run_settings = run
         return twin
 
-    def policy_apply(self, params, obs):
-        return self.policy.apply({"params": params}, obs)
-
-    def value_apply(self, params, obs):
-        return self.value.apply({"params": params}, obs)
-
     def sigma(self, samples):
         s = self.ppo_settings
         return sigma_at(samples, s.sigma_start, s.sigma_end, s.sigma_horizon)
@@ -107,16 +101,16 @@ class Trainer:
         runner = rollout_lib.start_runner(self.env, self.env_params, env_key,
                                           self.run_settings.envs)
         norm = RunningNorm.zeros(self.env.observation_size, runner.envs.obs.dtype)
-        return TrainState(self._ppo_init(ppo_key), norm, runner, key)
+        return TrainState(self.ppo.init(ppo_key, runner.envs.obs.dtype), norm, runner, key)
 
     def _iteration(self, state: TrainState):
         key, rollout_key, update_key = jax.random.split(state.key, 3)
         p = state.ppo
-        runner, batch, raw_obs, episodes, env_metrics, _ = self._rollout(
+        runner, batch, raw_obs, episodes, env_metrics, _ = self.rollout(
             self.env_params, state.runner, p.policy_params, p.value_params, state.norm,
             self.sigma(p.samples), rollout_key)
         norm = state.norm.update(raw_obs)
-        ppo_state, metrics = self._ppo_update(p, batch, update_key)
+        ppo_state, metrics = self.ppo.update(p, batch, update_key)
         mean_return, mean_length, finished = rollout_lib.episode_summary(episodes)
         metrics = {**metrics, "return": mean_return, "episode_length": mean_length,
                    "episodes": finished, "reward": jnp.mean(batch.reward),
@@ -139,13 +133,16 @@ def load_checkpoint(template: TrainState, run_dir) -> TrainState:
     path = Path(run_dir) / CHECKPOINT
     if not path.exists():
         raise FileNotFoundError(f"{path}: no checkpoint to resume from")
-    leaves, treedef = jax.tree_util.tree_flatten(template)
+    paths_leaves, treedef = jax.tree_util.tree_flatten_with_path(template)
     stored = flax.serialization.msgpack_restore(path.read_bytes())
-    if len(stored) != len(leaves) or any(
-            np.shape(a) != np.shape(b) or np.asarray(a).dtype != np.asarray(b).dtype
-            for a, b in zip(stored, leaves)):
-        raise ValueError(f"{path}: the checkpoint does not fit this run's config (networks, "
-                         "environments or task changed?)")
+    if len(stored) != len(paths_leaves):
+        raise ValueError(f"{path}: the checkpoint holds {len(stored)} arrays, this run's config "
+                         f"needs {len(paths_leaves)} (networks, environments or task changed?)")
+    for array, (where, leaf) in zip(stored, paths_leaves):
+        if np.shape(array) != np.shape(leaf) or np.asarray(array).dtype != np.asarray(leaf).dtype:
+            raise ValueError(f"{path}: {jax.tree_util.keystr(where)} is {np.asarray(array).dtype}"
+                             f"{list(np.shape(array))} in the checkpoint but this run's config "
+                             f"needs {np.asarray(leaf).dtype}{list(np.shape(leaf))}")
     return jax.tree_util.tree_unflatten(treedef, [jnp.asarray(a) for a in stored])
 
 
@@ -182,17 +179,20 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
     try:
         with open(run_dir / METRICS, "a", encoding="utf-8") as log:
             for _ in range(first, settings.iterations):
-                state, metrics = trainer.iteration(state)
+                # `state` moves on only once its iteration is logged, so a Ctrl-C checkpoints
+                # the last state whose line is in the log.
+                new_state, metrics = trainer.iteration(state)
                 metrics = jax.device_get(metrics)
                 now = time.perf_counter()
-                record = {"iteration": completed_iterations(state),
-                          "samples": int(state.ppo.samples),
+                record = {"iteration": completed_iterations(new_state),
+                          "samples": int(new_state.ppo.samples),
                           "samples_per_second": settings.samples_per_iteration / (now - last_time),
                           "seconds": now - started,
                           **{k: _json_value(v) for k, v in metrics.items()}}
                 last_time = now
                 log.write(json.dumps(record) + "\n")
                 log.flush()
+                state = new_state
                 if record["iteration"] % settings.progress_every == 0:
                     echo(_line(record, settings.iterations, started, first))
                 if record["iteration"] % settings.checkpoint_every == 0:
@@ -209,16 +209,25 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
 
 
 def read_metrics(run_dir) -> list[dict]:
+    """The log's records; a torn last line (a run killed while writing it) is left out."""
     path = Path(run_dir) / METRICS
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    if not path.exists():
+        return []
+    lines = [line for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+    records = []
+    for number, line in enumerate(lines, 1):
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:
+            if number < len(lines):
+                raise ValueError(f"{path}:{number}: not a JSON record") from None
+    return records
 
 
 def trim_metrics(run_dir, iterations: int):
     """Drop log lines past `iterations` (written after the last checkpoint of a killed run), so
-    a resumed run's log has each iteration once."""
+    a resumed run's log has each iteration once; 0 empties the log."""
     path = Path(run_dir) / METRICS
-    if not path.exists():
-        return
     kept = [r for r in read_metrics(run_dir) if r["iteration"] <= iterations]
     with atomic_path(path) as tmp:
         Path(tmp).write_text("".join(json.dumps(r) + "\n" for r in kept), encoding="utf-8")

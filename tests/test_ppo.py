@@ -224,7 +224,8 @@ SETTINGS = PPOSettings(hidden=(32, 32), minibatch_size=64, epochs=2, policy_lr=1
 
 @pytest.fixture(scope="module")
 def ppo():
-    init, update = make_ppo(OBS, ACTIONS, SETTINGS)
+    ppo = make_ppo(OBS, ACTIONS, SETTINGS)
+    init, update = ppo.init, ppo.update
     return init(jax.random.PRNGKey(0)), jax.jit(update)
 
 

@@ -10,6 +10,7 @@ import pytest
 
 from agents import cli, train_commands, trainer as trainer_lib
 from agents.config import ConfigError
+from agents.env import end_of_step, start_of_episode
 from agents.ppo import PPOSettings
 from agents.rollout import make_rollout, start_runner
 from agents.tasks.reach import ReachEnv, ReachSettings
@@ -53,6 +54,58 @@ def test_rollout_resets_finished_episodes_and_bootstraps_from_the_last_observati
     next_values = np.asarray(batch.next_value)
     np.testing.assert_allclose(next_values[:5], values[1:6], rtol=1e-12)   # within an episode
     assert np.all(np.abs(next_values[5] - values[6]) > 0)                   # across the reset
+
+
+class Countdown:
+    """A toy environment: obs (steps so far, a random tag drawn at reset); reward 1 a step; the
+    episode terminates at its third step."""
+
+    observation_size, action_size, episode_steps = 2, 1, 100
+
+    def default_params(self):
+        return {}
+
+    def reset(self, params, key):
+        tag = jax.random.uniform(key, (), jnp.float64)
+        return start_of_episode(jnp.zeros(()), jnp.stack([0.0, tag]), key, tag, {})
+
+    def step(self, params, state, action):
+        count = state.physics + 1.0
+        return end_of_step(state, count, jnp.stack([count, state.task]), 1.0, count >= 3.0,
+                           state.task, {}, self.episode_steps)
+
+
+def test_rollout_resets_after_termination_and_bootstraps_nothing_there():
+    env = Countdown()
+    trainer = trainer_lib.Trainer(env, {}, trainer_lib.RunSettings(task="reach", envs=2,
+                                                                   steps_per_iteration=8),
+                                  PPOSettings(hidden=(8,), minibatch_size=8))
+    state = trainer.init()
+    p = state.ppo
+    rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply, 8))
+    runner = start_runner(env, {}, jax.random.PRNGKey(3), 2)
+    _, batch, raw_obs, episodes, _, _ = rollout({}, runner, p.policy_params, p.value_params,
+                                                state.norm, 0.3, jax.random.PRNGKey(4))
+    raw_obs = np.asarray(raw_obs)
+    ended = np.asarray(episodes.ended)
+    assert np.array_equal(np.flatnonzero(ended[:, 0]), [2, 5])      # every third step
+    assert np.array_equal(np.asarray(batch.terminated), ended)
+    np.testing.assert_array_equal(np.asarray(episodes.returns)[[2, 5]], 3.0)
+    np.testing.assert_array_equal(np.asarray(episodes.lengths)[[2, 5]], 3)
+    # The step after a termination starts a fresh episode: count 0 and a new tag ...
+    np.testing.assert_array_equal(raw_obs[[3, 6], :, 0], 0.0)
+    assert np.all(raw_obs[3, :, 1] != raw_obs[2, :, 1])
+    # ... while next_value at the terminal step is V of the terminal observation (count 3, old
+    # tag), not of the fresh one.
+    terminal_obs = np.stack([np.full(2, 3.0), raw_obs[2, :, 1]], -1)
+    expected = trainer.value_apply(p.value_params, state.norm.normalize(jnp.asarray(terminal_obs)))
+    np.testing.assert_allclose(np.asarray(batch.next_value)[2], expected, rtol=1e-12)
+
+
+def test_first_episode_mask_stops_after_each_environment_s_first_end():
+    ended = np.array([[0, 0, 1], [1, 0, 0], [0, 0, 1], [1, 1, 0]], bool)
+    np.testing.assert_array_equal(train_commands._first_episode_mask(ended),
+                                  [[1, 1, 1], [1, 1, 0], [0, 1, 0], [0, 1, 0]])
 
 
 def test_ppo_learns_to_reach(tmp_path):
