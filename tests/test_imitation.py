@@ -20,7 +20,8 @@ from jaxsim import kinematics, rotations
 
 BATCH = 4
 # 0.2 s at 30 Hz: the time limit is 6 control steps (the other tests need no more).
-SETTINGS = ImitationSettings(episode_seconds=0.2)
+# As configs/imitate_walk.toml: SPD also tracks the clip's velocity.
+SETTINGS = ImitationSettings(episode_seconds=0.2, spd_target_velocity="reference")
 
 
 
@@ -171,17 +172,20 @@ def test_reset_batches_start_at_different_times(env, starts):
 
 
 def test_zero_residual_starts_with_a_high_reward(env, batched, starts):
-    """One step with a zero residual (the PD target is the reference one control step ahead)
-    from a state on the reference. In 1/30 s the character drifts from the reference only by the
-    SPD tracking lag (zero target velocity: the joints are damped towards rest) and the ground
-    contacts, so the pose and end-effector terms (weight 0.8 together) stay close to 1 while the
-    velocity and centre-of-mass velocity terms may drop: the reward stays above 0.6."""
+    """One step with a zero residual (the PD targets are the reference pose and velocity one
+    control step ahead) from a state on the reference. In 1/30 s the character drifts from the
+    reference only by the SPD tracking lag and the ground contacts, so the pose and end-effector
+    terms (weight 0.8 together) stay close to 1 while the velocity and centre-of-mass velocity
+    terms may drop: the reward stays above 0.6. A heel strike inside the step jolts the light
+    arms (from t = 0.61 s of the walk the left shoulder ends 15° off), so the pose term is only
+    above 0.75 everywhere, and above 0.95 for most starts."""
     _, step, _ = batched
     params = env.default_params()
     state = step(params, starts, zeros(env))
     assert np.all(state.reward > 0.6), state.reward
-    assert np.all(state.metrics["reward_pose"] > 0.9)
-    assert np.all(state.metrics["pose_error_degrees"] < 3)
+    assert np.all(state.metrics["reward_pose"] > 0.75)
+    assert np.median(state.metrics["reward_pose"]) > 0.95
+    assert np.all(state.metrics["pose_error_degrees"] < 5)
     assert set(state.metrics) == set(starts.metrics)
     for _ in range(3):
         for term in REWARD_TERMS:
@@ -254,6 +258,29 @@ def test_absolute_actions_and_action_scale(env, data_dir, reference):
     np.testing.assert_allclose(residual[revolute] - q_ref[revolute], target[revolute])
     doubled = jax.jit(with_settings(data_dir, action_scale=2.0).pd_target)
     np.testing.assert_allclose(doubled(q_ref, action / 2), residual, atol=1e-12)
+
+
+def test_reward_terms_against_known_errors(env, reference):
+    """Each DeepMimic term from an error we put in by hand: the neck turned by θ from the
+    reference (no end effector below it) gives exp(−k_pose θ²) and leaves the end-effector and
+    velocity terms at 1; a root velocity offset Δ (body frame, every link moves with it) gives
+    exp(−k_com ‖Δ‖²)."""
+    terms = jax.jit(env.reward_terms)
+    q_ref, qd_ref = reference(0.4)
+    neck = env.model.topology.q_offsets[env.model.topology.link_index("neck")]
+    theta = 0.3
+    turn = rotations.axis_angle_to_quat(jnp.array([0.6, 0.0, 0.8]), jnp.asarray(theta))
+    q = q_ref.at[neck:neck + 4].set(rotations.quat_multiply(q_ref[neck:neck + 4], turn))
+    values, angles = terms(q, qd_ref, q_ref, qd_ref)
+    assert float(values["pose"]) == pytest.approx(np.exp(-SETTINGS.k_pose * theta**2), rel=1e-9)
+    assert float(values["end_effector"]) == pytest.approx(1.0, abs=1e-12)
+    assert float(values["velocity"]) == pytest.approx(1.0, abs=1e-12)
+    assert float(jnp.max(angles)) == pytest.approx(theta, rel=1e-9)
+    delta = jnp.array([0.2, -0.1, 0.3])
+    values, _ = terms(q_ref, qd_ref.at[3:6].add(delta), q_ref, qd_ref)
+    assert float(values["com"]) == pytest.approx(
+        np.exp(-SETTINGS.k_com * float(delta @ delta)), rel=1e-9)
+    assert float(values["pose"]) == pytest.approx(1.0, abs=1e-12)
 
 
 # ---------------------------------------------------------------------------- settings

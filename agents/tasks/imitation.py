@@ -230,7 +230,8 @@ class ImitationEnv:
     def reset(self, params, key):
         """Reference state initialisation (Peng et al. 2018): `start_at` a uniformly random time
         in [0, duration)."""
-        start = jax.random.uniform(key, (), self.clip.poses.dtype, 0.0, self.clip.duration)
+        start_key, key = jax.random.split(key)
+        start = jax.random.uniform(start_key, (), self.clip.poses.dtype, 0.0, self.clip.duration)
         return self.start_at(start, key)
 
     def start_at(self, start, key):

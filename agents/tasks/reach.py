@@ -33,12 +33,13 @@ class ReachSettings:
     action_scale: float = 2.0
 
     def __post_init__(self):
+        for name in ("control_hz", "sim_hz", "episode_seconds", "action_scale"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"{name} must be positive; got {getattr(self, name)}")
         ratio = self.sim_hz / self.control_hz
-        if self.control_hz <= 0 or ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
+        if ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
             raise ValueError(f"sim_hz must be a whole multiple of control_hz; got "
                              f"{self.sim_hz} and {self.control_hz}")
-        if self.episode_seconds <= 0 or self.action_scale <= 0:
-            raise ValueError("episode_seconds and action_scale must be positive")
 
 
 def arm(dtype=None):
