@@ -18,6 +18,7 @@ from agents import pose_features
 from jaxsim import motion
 from jaxsim.atomic import atomic_path
 from jaxsim.model import Model
+from jaxsim.motion.clip import bucket_length
 from jaxsim.motion.retarget import CMU_ASF, retarget
 
 FRAME_RATE = 30.0
@@ -53,19 +54,15 @@ def resample(clip: motion.Clip, rate: float = FRAME_RATE) -> np.ndarray:
     duration = float(clip.duration)
     count = int(np.floor(duration * rate + 1e-9)) + (0 if clip.loop else 1)
     times = np.arange(max(count, 1)) / rate
-    frames = _bucket(clip.n_frames)
+    frames = bucket_length(clip.n_frames)
     extra = np.arange(1, frames - clip.n_frames + 1)
     padded = motion.Clip(
         np.concatenate([np.asarray(clip.times), float(clip.times[-1]) + extra]),
         np.concatenate([np.asarray(clip.poses), np.repeat(np.asarray(clip.poses[-1:]),
                                                           len(extra), 0)]),
         clip.topology, loop=False)
-    padded_times = np.pad(times, (0, _bucket(len(times)) - len(times)), "edge")
+    padded_times = np.pad(times, (0, bucket_length(len(times)) - len(times)), "edge")
     return np.asarray(_sample_poses(padded, padded_times.astype(clip.poses.dtype)))[:len(times)]
-
-
-def _bucket(count: int) -> int:
-    return max(16, 1 << (count - 1).bit_length())
 
 
 @jax.jit

@@ -2,8 +2,9 @@
 
 Encoder input, per pose: every non-root link's position relative to the root, in the root's frame,
 then every actuated joint's rotation relative to its parent in the 6D representation (the first
-two columns of the rotation matrix). Root position and heading are left out, so a pose means the
-same wherever the character stands and whichever way it faces.
+two columns of the rotation matrix). Everything is in the root's frame, so the root's position and
+its whole orientation (heading, and also its lean) are left out: a pose means the same wherever
+the character stands and however its pelvis is turned.
 
 Decoder output ("PD target"): per actuated joint in link order, the 6D rotation of a spherical
 joint or the angle of a revolute one. A decoded target becomes joint targets in exponential

@@ -7,6 +7,15 @@ import tempfile
 from pathlib import Path
 
 
+def _read_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()     # read once, at import: os.umask is process-wide, not thread-safe
+
+
 @contextlib.contextmanager
 def atomic_path(path):
     """Yield a temporary file name beside `path` (creating the folder; the name keeps `path`'s
@@ -17,7 +26,7 @@ def atomic_path(path):
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".",
                                suffix=".tmp" + path.suffix)
     os.close(fd)
-    os.chmod(tmp, 0o666 & ~_umask())    # mkstemp makes it private; give it a normal file's mode
+    os.chmod(tmp, 0o666 & ~_UMASK)    # mkstemp makes it private; give it a normal file's mode
     try:
         yield tmp
         with open(tmp, "rb+") as f:
@@ -26,12 +35,6 @@ def atomic_path(path):
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def write_text_atomic(path, text):

@@ -9,14 +9,12 @@ from jaxsim.atomic import atomic_path, write_text_atomic
 
 
 def test_written_file_has_a_normal_mode_and_no_leftovers(tmp_path):
-    old = os.umask(0o022)
-    try:
-        write_text_atomic(tmp_path / "sub" / "a.txt", "hello")
-    finally:
-        os.umask(old)
+    umask = os.umask(0)
+    os.umask(umask)
+    write_text_atomic(tmp_path / "sub" / "a.txt", "hello")
     path = tmp_path / "sub" / "a.txt"
     assert path.read_text() == "hello"
-    assert stat.S_IMODE(path.stat().st_mode) == 0o644
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask     # as open() would make it
     assert os.listdir(tmp_path / "sub") == ["a.txt"]
 
 

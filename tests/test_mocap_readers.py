@@ -344,12 +344,21 @@ def test_malformed_amc_names_file_and_line(tmp_path, edit, line, reason):
     (("Frame Time: 0.04\n", ""), 27, "Frame Time:"),
     (("JOINT leg", "JOINT"), 17, "expected '{'"),
     (("CHANNELS 3 Xrotation", "CHANNELS 3 Xposition"), 18, "'Xposition'"),
+    (("Frames: 2\nFrame Time: 0.04\n0 0 0 0 0 0 0 0 0 0 0 0\n1 1 1 90 0 0 0 90 90 0 0 90\n",
+      "Frames: 0\nFrame Time: 0.04\n"), 26, "frame count must be a whole number ≥ 1"),
 ])
 def test_malformed_bvh_names_file_and_line(tmp_path, edit, line, reason):
     path = write_crlf(tmp_path / "bad.bvh", SMALL_BVH.replace(*edit))
     with pytest.raises(motion.MotionFileError) as error:
         motion.load_bvh(path)
     assert str(error.value).startswith(f"{path}:{line}: ") and reason in str(error.value)
+
+
+def test_an_amc_without_frames_is_an_error(tmp_path):
+    skeleton = motion.load_asf(write_crlf(tmp_path / "small.asf", SMALL_ASF))
+    path = write_crlf(tmp_path / "empty.amc", ":FULLY-SPECIFIED\n:DEGREES\n")
+    with pytest.raises(motion.MotionFileError, match=f"{path}:1: the file holds no frames"):
+        motion.load_amc(path, skeleton)
 
 
 @pytest.mark.parametrize("edit, line, reason", [

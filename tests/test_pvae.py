@@ -55,8 +55,21 @@ def test_decoder_target_round_trips_to_the_joint_targets(humanoid):
                                rotations.quat_to_matrix(_joint_quats(humanoid, q)), atol=1e-9)
     revolute = humanoid.topology.q_offsets[humanoid.topology.links_of_type("revolute")]
     np.testing.assert_allclose(pose[revolute], q[revolute], atol=1e-12)
-    errors = pose_features.joint_angle_errors(humanoid, target, target)
-    np.testing.assert_allclose(errors, 0.0, atol=1e-6)
+    # Turn one spherical joint (the chest) by 0.3 rad and bend one revolute joint (the right
+    # knee) by 0.2 rad: exactly those two joints differ, by those angles.
+    topo = humanoid.topology
+    chest, knee = topo.q_offsets[topo.link_index("chest")], topo.q_offsets[
+        topo.link_index("right_knee")]
+    turn = rotations.axis_angle_to_quat(jnp.array([0.0, 0.6, 0.8]), jnp.asarray(0.3))
+    moved = q.at[chest:chest + 4].set(rotations.quat_multiply(q[chest:chest + 4], turn))
+    moved = moved.at[knee].add(0.2)
+    errors = np.asarray(pose_features.joint_angle_errors(
+        humanoid, target, pose_features.pd_target(humanoid, moved)))
+    layout = pose_features.PoseLayout.of(humanoid)
+    expected = np.zeros(len(layout.actuated))
+    expected[layout.actuated.index(topo.link_index("chest"))] = 0.3
+    expected[layout.actuated.index(topo.link_index("right_knee"))] = 0.2
+    np.testing.assert_allclose(errors, expected, atol=1e-6)
 
 
 def _joint_quats(model, q):

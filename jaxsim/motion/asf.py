@@ -298,6 +298,8 @@ def _amc_values(path, skeleton: AsfSkeleton):
     """([each bone's values (T, its dof count) in file units, in skeleton order], whether the
     angles are in degrees)."""
     frames, entries, degrees = _amc_lines(path, skeleton.names)
+    if not frames:
+        raise fail(path, 1, "the file holds no frames")
     frame_lines = np.array([line for line, _ in frames], int)
     values = []
     for name, dofs in zip(skeleton.names, skeleton.dofs):

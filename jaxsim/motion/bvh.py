@@ -145,8 +145,8 @@ def _motion(path, lines, n_channels):
     if len(lines) < 2:
         raise fail(path, end, "MOTION needs 'Frames:' and 'Frame Time:' lines")
     n_frames = _header_value(path, lines[0], "Frames:")
-    if n_frames != int(n_frames) or n_frames < 0:
-        raise fail(path, lines[0][0], "the frame count must be a whole number")
+    if n_frames != int(n_frames) or n_frames < 1:
+        raise fail(path, lines[0][0], "the frame count must be a whole number ≥ 1")
     frame_time = _header_value(path, lines[1], "Frame Time:")
     if frame_time <= 0:
         raise fail(path, lines[1][0], "the frame time must be positive")

@@ -149,3 +149,9 @@ def make_clip(model: Model, frame_durations, poses, loop: bool, source: str = "c
     times = np.concatenate([[0.0], np.cumsum(durations[:-1])])
     dtype = model.mass.dtype
     return Clip(jnp.asarray(times, dtype), jnp.asarray(poses, dtype), topo, bool(loop))
+
+
+def bucket_length(count: int, minimum: int = 16) -> int:
+    """The next power of two ≥ count (and ≥ minimum). Padding per-frame arrays to such lengths
+    lets clips of many lengths share a few compilations of the same function."""
+    return max(minimum, 1 << (max(count, 1) - 1).bit_length())

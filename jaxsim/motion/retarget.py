@@ -33,7 +33,7 @@ import numpy as np
 
 from jaxsim import rotations
 from jaxsim.model import Model
-from jaxsim.motion.clip import Clip, make_clip
+from jaxsim.motion.clip import Clip, bucket_length, make_clip
 from jaxsim.motion.skeleton import SkeletonClip, axis_rotation, model_skeleton, world_deltas
 
 
@@ -133,12 +133,13 @@ def _compiled(conversion):
 
 
 def _per_frame(conversion, *arrays):
-    """A `jaxsim.rotations` conversion applied to per-frame arrays (T, …) as float64 NumPy.
+    """A `jaxsim.rotations` conversion applied to per-frame arrays (T, …), back as NumPy (float64
+    arrays, with float32 precision unless JAX runs with x64).
 
     The frames are padded (by repeating the last) to a power-of-two count, so clips of any
     length share a few compilations instead of compiling every operation for every length."""
     count = arrays[0].shape[0]
-    padded = max(64, 1 << (count - 1).bit_length())
+    padded = bucket_length(count, minimum=64)
     arrays = [np.pad(np.asarray(a), [(0, padded - count)] + [(0, 0)] * (a.ndim - 1), "edge")
               for a in arrays]
     return np.asarray(_compiled(conversion)(*arrays), float)[:count]

@@ -120,7 +120,8 @@ def world_deltas(clip: SkeletonClip):
 
 def model_skeleton(model: Model) -> Skeleton:
     """A model's links as a skeleton in its rest pose (root at the origin). A bone's tip is the
-    mean of its children's joints, or its collision shape's far end for a leaf link."""
+    mean of its children's joints; for a leaf link it is the shape centre's offset from the joint,
+    doubled (the far end of a shape that starts at the joint; for drawing only)."""
     topo = model.topology
     rot, pos = (np.asarray(a, float)
                 for a in kinematics.forward_kinematics(model, rest_pose(model)))
