@@ -4,7 +4,9 @@
                                                     # time in the rollout (simulation) vs the update
     python benchmarks/imitation.py train [--minutes 60]
                                                     # train configs/imitate_walk.toml for that long,
-                                                    # evaluate, and write figures into docs/
+                                                    # then `report`
+    python benchmarks/imitation.py report           # evaluate that run (16 episodes, mean action),
+                                                    # figures into docs/, summary into results/
 
 Needs the reference data (TAKEOFF_DATA, default ../shared/data).
 """
@@ -49,12 +51,12 @@ def speed(args):
     state = trainer.init()
     p = state.ppo
     sigma = trainer.sigma(p.samples)
-    rollout = jax.jit(trainer._rollout)
+    rollout = jax.jit(trainer.rollout)
     rollout_args = (trainer.env_params, state.runner, p.policy_params, p.value_params,
                     state.norm, sigma, state.key)
     rollout_s, rollout_compile = _timed(rollout, *rollout_args, repeats=args.repeats)
     batch = rollout(*rollout_args)[1]
-    update = jax.jit(trainer._ppo_update)
+    update = jax.jit(trainer.ppo.update)
     update_s, update_compile = _timed(update, p, batch, state.key, repeats=args.repeats)
     iteration_s, iteration_compile = _timed(lambda s: trainer.iteration(s)[1], state,
                                             repeats=args.repeats)
@@ -76,11 +78,15 @@ def train(args):
     if out.exists():
         shutil.rmtree(out)
     overrides = [f"run.time_limit_minutes={args.minutes}", "run.iterations=100000", *args.set]
-    start = time.perf_counter()
-    data = reference_data("deepmimic")
-    train_commands.train(CONFIG, out, overrides, data_dir=data)
-    wall = time.perf_counter() - start
-    summary, env, poses = train_commands.evaluate(out, episodes=16, data_dir=data)
+    train_commands.train(CONFIG, out, overrides, data_dir=reference_data("deepmimic"))
+    report(args)
+
+
+def report(args):
+    """Evaluate the run in results/imitate_walk and write its figures and summary."""
+    out = RESULTS / "imitate_walk"
+    summary, env, poses = train_commands.evaluate(out, episodes=16,
+                                                  data_dir=reference_data("deepmimic"))
     shutil.copyfile(out / train_commands.CURVE, DOCS / "imitate_walk_curve.png")
     shown = poses[: int(3.0 / env.control_dt)]
     render.filmstrip(env.model, shown, DOCS / "imitate_walk_eval.png", world=env.world,
@@ -88,10 +94,12 @@ def train(args):
                      title="deterministic policy after training (first 3 s of an evaluation "
                            "episode)")
     records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    result = {"machine": machine_info(), "minutes": args.minutes, "wall_seconds": wall,
-              "iterations": records[-1]["iteration"], "samples": records[-1]["samples"],
-              "mean_samples_per_second": records[-1]["samples"] / records[-1]["seconds"],
-              "last_return": records[-1]["return"], "evaluation": summary}
+    last = records[-1]
+    result = {"machine": machine_info(), "iterations": last["iteration"],
+              "samples": last["samples"], "training_seconds": last["seconds"],
+              "mean_samples_per_second": last["samples"] / last["seconds"],
+              "last_return": last["return"], "last_episode_length": last["episode_length"],
+              "evaluation": summary}
     write_text_atomic(RESULTS / "imitate_walk.json", json.dumps(result, indent=2) + "\n")
     print(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
 
@@ -106,6 +114,7 @@ def main():
     p = sub.add_parser("train")
     p.add_argument("--minutes", type=float, default=60.0)
     p.set_defaults(run=train)
+    sub.add_parser("report").set_defaults(run=report)
     for p in sub.choices.values():
         p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     args = parser.parse_args()
