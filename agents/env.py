@@ -17,6 +17,7 @@ time limit: the episode was cut short, so the value of the last observation is b
 """
 
 import dataclasses
+import math
 from typing import Any, Protocol
 
 import jax
@@ -81,3 +82,17 @@ def start_of_episode(physics, obs, key, task, metrics) -> EnvState:
     false = jnp.zeros((), bool)
     return EnvState(physics, obs, jnp.zeros((), obs.dtype), false, false,
                     jnp.zeros((), jnp.int32), key, task, metrics)
+
+
+def check_timing(settings):
+    """Validate a task's `control_hz`, `sim_hz`, `episode_seconds` and `action_scale` (positive
+    and finite; the simulation rate a whole multiple of the control rate, so each control step
+    is a whole number of substeps); a ValueError names the key."""
+    for name in ("control_hz", "sim_hz", "episode_seconds", "action_scale"):
+        value = getattr(settings, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be positive; got {value}")
+    ratio = settings.sim_hz / settings.control_hz
+    if ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
+        raise ValueError(f"sim_hz must be a whole multiple of control_hz; got "
+                         f"{settings.sim_hz} and {settings.control_hz}")

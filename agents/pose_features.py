@@ -125,7 +125,7 @@ def exp_to_pose(model: Model, joint_targets, root=None):
     sph_e, rev_e = layout.exp_index
     q = jnp.zeros(topo.nq, joint_targets.dtype)
     if topo.floating:
-        q = q.at[:7].set(jnp.array([0, 0, 0, 1, 0, 0, 0], q.dtype) if root is None else root)
+        q = q.at[:7].set(jnp.asarray([0, 0, 0, 1, 0, 0, 0] if root is None else root, q.dtype))
     quats, _ = topo.spherical_indices
     q = q.at[quats].set(rotations.rotvec_to_quat(joint_targets[sph_e]))
     return q.at[topo.q_offsets[np.array(layout.revolute, int)]].set(joint_targets[rev_e])
@@ -139,7 +139,7 @@ def exp_rotations(model: Model, joint_targets):
     sph_at, rev_at = layout.order
     mats = jnp.zeros((len(layout.actuated), 3, 3), joint_targets.dtype)
     mats = mats.at[sph_at].set(rotations.rotvec_to_matrix(joint_targets[sph_e]))
-    axes = model.joint_axis[np.array(layout.revolute, int)]
+    axes = model.joint_axis[np.array(layout.revolute, int)].astype(joint_targets.dtype)
     return mats.at[rev_at].set(rotations.axis_angle_to_matrix(axes, joint_targets[rev_e]))
 
 

@@ -14,7 +14,8 @@ pytest.importorskip("matplotlib", reason="the render extra is part of the test e
 def poses():
     model = characters.humanoid()
     q = rest_pose(model, 0.9)
-    bend = q.at[7:11].set(jnp.array([0.9, 0.0, 0.0, 0.43], q.dtype) / np.hypot(0.9, 0.43))
+    bend = q.at[7:11].set(jnp.array(np.array([0.9, 0.0, 0.0, 0.43]) / np.hypot(0.9, 0.43),
+                                    q.dtype))
     return model, jnp.stack([q, bend, q])
 
 

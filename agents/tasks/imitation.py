@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.env import end_of_step, start_of_episode
+from agents.env import check_timing, end_of_step, start_of_episode
 from agents.observations import body_observation, observation_size
 from agents.pose_features import PoseLayout, exp_to_pose
 from jaxsim import characters, kinematics, motion, rotations, simulation
@@ -76,13 +76,7 @@ class ImitationSettings:
         for name in ("clip", "character"):
             if not getattr(self, name):
                 raise ValueError(f"{name} must name a file")
-        for name in ("control_hz", "sim_hz", "episode_seconds", "action_scale"):
-            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
-                raise ValueError(f"{name} must be positive; got {getattr(self, name)}")
-        ratio = self.sim_hz / self.control_hz
-        if ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
-            raise ValueError(f"sim_hz must be a whole multiple of control_hz; got "
-                             f"{self.sim_hz} and {self.control_hz}")
+        check_timing(self)
         if self.episode_steps < 1:
             raise ValueError(f"episode_seconds must last at least one control step "
                              f"(1/{self.control_hz} s); got {self.episode_seconds}")

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.env import end_of_step, start_of_episode
+from agents.env import check_timing, end_of_step, start_of_episode
 from jaxsim import kinematics, simulation
 from jaxsim.builder import LinkSpec, build_model
 from jaxsim.characters.common import Y_TO_X
@@ -33,13 +33,7 @@ class ReachSettings:
     action_scale: float = 2.0
 
     def __post_init__(self):
-        for name in ("control_hz", "sim_hz", "episode_seconds", "action_scale"):
-            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
-                raise ValueError(f"{name} must be positive; got {getattr(self, name)}")
-        ratio = self.sim_hz / self.control_hz
-        if ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
-            raise ValueError(f"sim_hz must be a whole multiple of control_hz; got "
-                             f"{self.sim_hz} and {self.control_hz}")
+        check_timing(self)
 
 
 def arm(dtype=None):
