@@ -82,6 +82,29 @@ def transform_force_to_parent(rotation, translation, f):
     return jnp.concatenate([n + jnp.cross(translation, fl), fl], -1)
 
 
+def inertia_to_parent(rotation, translation, inertia):
+    """ᴮX_Aᵀ I ᴮX_A: a 6×6 (articulated) inertia in B coordinates expressed in A coordinates,
+    with X = plucker(E, r), by 3×3 blocks instead of two 6×6 products (about 40% of the work).
+
+    X = diag(E, E) · T with T = [[1, 0], [−r̃, 1]]. Rotating first, J = diag(Eᵀ, Eᵀ) I diag(E, E)
+    has blocks J_xy = Eᵀ I_xy E, and then Tᵀ J T = [[J_aa + r̃ J_ba − N r̃, N], [J_ba − J_bb r̃, J_bb]]
+    with N = J_ab + r̃ J_bb. All four blocks are transformed, not three and a transpose: an
+    articulated inertia of a deep chain is nearly singular, and imposing symmetry here cost 1000×
+    in accuracy on the 195-DoF snake (tests/test_dynamics.py).
+    """
+    et = transpose(rotation)
+    r = skew(translation)
+
+    def rotate(block):
+        return mat_mat(et, mat_mat(block, rotation))
+    j_aa, j_ab = rotate(inertia[..., :3, :3]), rotate(inertia[..., :3, 3:])
+    j_ba, j_bb = rotate(inertia[..., 3:, :3]), rotate(inertia[..., 3:, 3:])
+    n = j_ab + mat_mat(r, j_bb)
+    top = jnp.concatenate([j_aa + mat_mat(r, j_ba) - mat_mat(n, r), n], -1)
+    bottom = jnp.concatenate([j_ba - mat_mat(j_bb, r), j_bb], -1)
+    return jnp.concatenate([top, bottom], -2)
+
+
 def inertia_matrix(mass, com, rot_inertia):
     """6×6 spatial inertia of a rigid body about its frame origin.
 

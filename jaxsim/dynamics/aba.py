@@ -19,6 +19,12 @@ which is first-order insensitive to rounding in D_i⁻¹ and symmetric positive 
 construction. The plain difference lets rounding grow about tenfold per level of a deep tree (a
 22-link snake lost all accuracy in float64); see docs/benchmarks.md.
 
+Every non-root joint type (spherical, revolute, fixed) moves in rotation only, S_i = [T_i; 0] with
+T_i 3×3, so the step works on 3-row blocks: U_i = I_iᴬ[:, :3] T_i, D_i = T_iᵀ U_i,top + K_i and,
+with W_i = U_i D_i⁻¹ and G_i = I_iᴬ P_i = I_iᴬ − U_i W_iᵀ, the Joseph form is
+G_i − W_i (T_iᵀ G_i,top) + W_i K_i W_iᵀ; the result moves to the parent by
+`spatial.inertia_to_parent`. About half the arithmetic of the 6×6 products.
+
 The floating root is the base case a_0 = (I_0ᴬ + K_0)⁻¹ (Q_0 − p_0ᴬ), with K_0 = 0 for an
 unactuated root and SPD gains for "hand-of-God" tracking.
 """
@@ -49,17 +55,16 @@ def articulated_body_solve(model: Model, q, qd, joint_force, damping, f_ext=None
 
     def inward_step(acc, link):
         (ia, pa), (e, r, s_i, c_i, force_i, damping_i) = acc, link
-        s_t = s_i.T
-        u_mat = mat_mat(ia, s_i)                                       # U_i = I_iᴬ S_i
-        d_inv = inv3(mat_mat(s_t, u_mat) + jnp.diag(damping_i))        # (2.19)
-        u = force_i - mat_vec(s_t, pa)                                 # (2.20)
-        u_dinv = mat_mat(u_mat, d_inv)
-        projector = jnp.eye(6, dtype=ia.dtype) - mat_mat(s_i, u_dinv.T)  # P = 1 − S D⁻¹ Uᵀ
-        ia_art = (mat_mat(projector.T, mat_mat(ia, projector))           # (2.24), Joseph form
-                  + mat_mat(u_dinv * damping_i, u_dinv.T))
-        pa_art = pa + mat_vec(ia_art, c_i) + mat_vec(u_dinv, u)        # (2.25)
-        x = spatial.plucker(e, r)
-        return (u_mat, d_inv, u), (mat_mat(x.T, mat_mat(ia_art, x)),
+        t_t = s_i[:3].T                                                # S_i = [T_i; 0]
+        u_mat = mat_mat(ia[:, :3], s_i[:3])                            # U_i = I_iᴬ S_i
+        d_inv = inv3(mat_mat(t_t, u_mat[:3]) + jnp.diag(damping_i))   # (2.19)
+        u = force_i - mat_vec(t_t, pa[:3])                             # (2.20)
+        w = mat_mat(u_mat, d_inv)                                      # W = U D⁻¹
+        g = ia - mat_mat(u_mat, w.T)                                   # Iᴬ P
+        ia_art = (g - mat_mat(w, mat_mat(t_t, g[:3]))                  # (2.24), Joseph form
+                  + mat_mat(w * damping_i, w.T))
+        pa_art = pa + mat_vec(ia_art, c_i) + mat_vec(w, u)             # (2.25)
+        return (u_mat, d_inv, u), (spatial.inertia_to_parent(e, r, ia_art),
                                    spatial.transform_force_to_parent(e, r, pa_art))
 
     (ia_root, pa_root), per_level = scan_inward(
