@@ -4,6 +4,7 @@ import argparse
 import os
 import sys
 
+from jaxsim import allocator
 from jaxsim.atomic import write_text_atomic
 
 
@@ -181,6 +182,8 @@ def build_parser():
 
 
 def main(argv=None):
+    if argv is None:                  # a real command line, not a call from Python
+        allocator.restart_with_tunables()
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:

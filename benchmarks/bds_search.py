@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxsim import allocator
 from jaxsim.atomic import write_text_atomic
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.search import SearchSettings, plan_round, search
@@ -125,4 +126,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    allocator.restart_with_tunables()
     main()

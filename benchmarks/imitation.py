@@ -24,6 +24,7 @@ import numpy as np
 from agents import train_commands
 from agents import config as config_io
 from jaxsim import render
+from jaxsim import allocator
 from jaxsim.atomic import write_text_atomic
 from spd import machine_info, reference_data
 
@@ -122,4 +123,5 @@ def main():
 
 
 if __name__ == "__main__":
+    allocator.restart_with_tunables()
     main()

@@ -18,6 +18,7 @@ import numpy as np
 
 from agents import pvae_commands
 from jaxsim import characters, motion, render
+from jaxsim import allocator
 from jaxsim.atomic import write_text_atomic
 from jaxsim.motion import retarget as rt
 from spd import machine_info, reference_data
@@ -100,4 +101,5 @@ def main():
 
 
 if __name__ == "__main__":
+    allocator.restart_with_tunables()
     main()

@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsim import allocator
 from jaxsim.atomic import write_text_atomic
 from jaxsim import characters, dynamics, rotations
 
@@ -273,4 +274,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    allocator.restart_with_tunables()
     main()

@@ -37,7 +37,7 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)      # float64 runs; every model/world is cast explicitly
 
-from jaxsim import characters, kinematics, motion, simulation, tracking  # noqa: E402
+from jaxsim import allocator, characters, kinematics, motion, simulation, tracking  # noqa: E402
 from jaxsim.model import rest_pose  # noqa: E402
 from jaxsim.world import make_world  # noqa: E402
 from jaxsim.atomic import write_text_atomic  # noqa: E402
@@ -327,4 +327,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    allocator.restart_with_tunables()
     main()
