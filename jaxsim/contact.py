@@ -30,6 +30,7 @@ import numpy as np
 
 from jaxsim import kinematics
 from jaxsim.model import Model, Topology
+from jaxsim.spatial import mat_vec, transpose
 from jaxsim.world import World
 
 # The 8 corners of a box as multiples of its half-extents.
@@ -130,7 +131,7 @@ def _probe_segments(model: Model, probes: Probes, rot_w, pos_w):
 
     def to_world(ends):
         offset = jnp.asarray(ends, size.dtype) * size
-        return centre[links] + (shape_rot[links] @ offset[..., None])[..., 0]
+        return centre[links] + mat_vec(shape_rot[links], offset)
 
     radius = jnp.where(jnp.asarray(probes.rounded), size[:, 0], 0.0)
     return to_world(probes.end_a), to_world(probes.end_b), radius
@@ -138,7 +139,7 @@ def _probe_segments(model: Model, probes: Probes, rot_w, pos_w):
 
 def box_distance(point, center, rotation, half_size):
     """Signed distance from world points to a box (negative inside) and the outward normal."""
-    local = ((point - center)[..., None, :] @ rotation)[..., 0, :]    # Rᵀ (p − c)
+    local = mat_vec(transpose(rotation), point - center)             # Rᵀ (p − c)
     excess = jnp.abs(local) - half_size
     outside = jnp.maximum(excess, 0.0)
     out_dist = _safe_norm(outside)
@@ -147,7 +148,7 @@ def box_distance(point, center, rotation, half_size):
     out_normal = sign * outside / jnp.where(out_dist > 0, out_dist, 1.0)[..., None]
     face = jax.nn.one_hot(jnp.argmax(excess, -1), 3, dtype=point.dtype)
     normal_local = jnp.where((out_dist > 0)[..., None], out_normal, sign * face)
-    return out_dist + in_dist, (rotation @ normal_local[..., None])[..., 0]
+    return out_dist + in_dist, mat_vec(rotation, normal_local)
 
 
 def _nearest_on_segment(a, b, center, rotation, half_size):
@@ -184,7 +185,7 @@ def contact_geometry(model: Model, world: World, rot_w, pos_w):
         n = jnp.broadcast_to(world.ground_normal, a.shape)
         points.append(a - radius[:, None] * n)
         normals.append(n)
-        gaps.append(a @ world.ground_normal - world.ground_offset - radius)
+        gaps.append(jnp.sum(a * world.ground_normal, -1) - world.ground_offset - radius)
     if world.box_names:
         a, b, radius = _probe_segments(model, layout.box, rot_w, pos_w)
 
@@ -204,18 +205,22 @@ def contact_geometry(model: Model, world: World, rot_w, pos_w):
 def point_velocities(rot_w, pos_w, v_body, links, points):
     """World velocities of world points fixed to the given links (body velocities [ω; v])."""
     r, o, v = rot_w[links], pos_w[links], v_body[links]
-    local = ((points - o)[:, None, :] @ r)[:, 0, :]                      # Rᵀ (x − o)
-    return (r @ (v[:, 3:] + jnp.cross(v[:, :3], local))[..., None])[..., 0]
+    local = mat_vec(transpose(r), points - o)                           # Rᵀ (x − o)
+    return mat_vec(r, v[:, 3:] + jnp.cross(v[:, :3], local))
 
 
 def link_wrenches(rot_w, pos_w, links, points, forces, n_links):
     """Spatial forces [x × f; f] on each link (n_links, 6), in link coordinates, from world
     forces applied at world points."""
     r, o = rot_w[links], pos_w[links]
-    f_local = (forces[:, None, :] @ r)[:, 0, :]
-    x_local = ((points - o)[:, None, :] @ r)[:, 0, :]
+    f_local = mat_vec(transpose(r), forces)
+    x_local = mat_vec(transpose(r), points - o)
     wrench = jnp.concatenate([jnp.cross(x_local, f_local), f_local], -1)
-    return jax.ops.segment_sum(wrench, jnp.asarray(links), num_segments=n_links)
+    # The contacts' links are known when tracing: static slices and adds, not a scatter-add
+    # (XLA on CPU runs batched scatters slowly).
+    zero = jnp.zeros(wrench.shape[1:], wrench.dtype)
+    return jnp.stack([sum((wrench[c] for c in np.flatnonzero(np.asarray(links) == link)), zero)
+                      for link in range(n_links)])
 
 
 def contact_forces(model: Model, world: World, rot_w, pos_w, v_body, stretch, dt):

@@ -10,6 +10,7 @@ import numpy as np
 
 from jaxsim import rotations, spatial
 from jaxsim.model import JOINT_SLOTS, Model
+from jaxsim.spatial import mat_mat, mat_vec
 from jaxsim.tree import gather_slots, pad_links, scan_outward
 
 
@@ -46,7 +47,7 @@ def local_poses(model: Model, q):
     if len(rev):
         joint_rot = joint_rot.at[rev].set(rotations.axis_angle_to_matrix(
             model.joint_axis[rev], q[topo.q_offsets[rev]]))
-    rot = model.joint_rot @ joint_rot
+    rot = mat_mat(model.joint_rot, joint_rot)
     pos = model.joint_pos
     if topo.floating:
         rot = rot.at[0].set(rotations.quat_to_matrix(rotations.quat_normalize(q[3:7])))
@@ -76,7 +77,7 @@ def forward_kinematics(model: Model, q):
 
     def step(parent, local):
         (r_p, p_p), (r_l, p_l) = parent, local
-        return r_p @ r_l, p_p + r_p @ p_l
+        return mat_mat(r_p, r_l), p_p + mat_vec(r_p, p_l)
 
     r_w, p_w = scan_outward(model.topology, step, (rot[0], pos[0]), pad_links((rot, pos)))
     return r_w[:-1], p_w[:-1]
@@ -92,8 +93,8 @@ def link_states(model: Model, q, qd):
 
     def step(parent, data):
         (r_p, p_p, v_p), (r, p, s_i, qd_i) = parent, data
-        v = spatial.transform_motion(r.T, p, v_p) + s_i @ qd_i
-        return r_p @ r, p_p + r_p @ p, v
+        v = spatial.transform_motion(r.T, p, v_p) + mat_vec(s_i, qd_i)
+        return mat_mat(r_p, r), p_p + mat_vec(r_p, p), v
 
     r_w, p_w, v = scan_outward(model.topology, step, (rot[0], pos[0], root_v),
                                (*pad_links((rot, pos, s)), slots))
@@ -108,8 +109,8 @@ def link_velocities(model: Model, q, qd):
 def shape_poses(model: Model, rot_w, pos_w):
     """World rotation (n, 3, 3) and centre (n, 3) of every link's collision shape, from the
     links' world poses."""
-    rot = rot_w @ model.shape_rot
-    centre = pos_w + (rot_w @ model.shape_pos[..., None])[..., 0]
+    rot = mat_mat(rot_w, model.shape_rot)
+    centre = pos_w + mat_vec(rot_w, model.shape_pos)
     return rot, centre
 
 
@@ -191,6 +192,6 @@ def integrate(model: Model, q, qd, dt):
         q_next = q_next.at[qi].set(rotate(q[qi], qd[vi]))
     if topo.floating:
         rot = rotations.quat_to_matrix(rotations.quat_normalize(q[3:7]))
-        q_next = q_next.at[0:3].add(dt * (rot @ qd[3:6]))
+        q_next = q_next.at[0:3].add(dt * mat_vec(rot, qd[3:6]))
         q_next = q_next.at[3:7].set(rotate(q[3:7], qd[0:3]))
     return q_next

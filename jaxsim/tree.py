@@ -50,7 +50,20 @@ def _select(selector, values):
 
 
 def _to_levels(topology: Topology, link_data):
-    return _map(lambda d: d[jnp.asarray(topology.levels)], link_data)
+    """Per-link arrays (n+1, ...) → the level table's layout (n_levels, width, ...), by static
+    slices (a gather or scatter over the batch runs slowly on CPU)."""
+    return _map(lambda d: jnp.stack([jnp.stack([d[link] for link in row])
+                                     for row in topology.levels]), link_data)
+
+
+def _from_levels(topology: Topology, root, per_level):
+    """The inverse of `_to_levels` for one tree of values: the root's value, each link's value
+    from its level-table slot, and a zero dummy row → (n+1, ...)."""
+    slot = {int(link): (k, w) for (k, w), link in np.ndenumerate(topology.levels)
+            if link < topology.n_links}
+    return _map(lambda r, v: jnp.stack([r.astype(v.dtype)]
+                                       + [v[slot[link]] for link in range(1, topology.n_links)]
+                                       + [jnp.zeros(r.shape, v.dtype)]), root, per_level)
 
 
 def scan_outward(topology: Topology, step, root_value, link_data, level_data=None):
@@ -73,9 +86,7 @@ def scan_outward(topology: Topology, step, root_value, link_data, level_data=Non
         return values, values
 
     _, per_level = lax.scan(body, first, (selectors, _to_levels(topology, link_data), level_data))
-    levels = jnp.asarray(topology.levels)
-    return _map(lambda r, v: jnp.zeros((topology.n_links + 1,) + r.shape, v.dtype)
-                .at[levels].set(v).at[0].set(r).at[-1].set(0), root_value, per_level)
+    return _from_levels(topology, root_value, per_level)
 
 
 def scan_inward(topology: Topology, step, own, link_data):
