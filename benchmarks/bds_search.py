@@ -10,6 +10,10 @@ and the first 20 evaluations. The methods are
     bds        Algorithm 1 (4 random, then 3 exploration / 3 diversity picks alternating), q = 1
     bds-q4     batched BDS, 4 points per round (counted per evaluation, not per round)
 
+Reference: how many strategies spreading the points alone finds — the expected count for uniform
+random points (from the strategies' volumes) and for maximin space-filling designs (best of 300
+random designs by smallest pairwise distance, 5 per landscape).
+
 Decision time: the wall time of planning one BDS pick (GP fit + acquisition + optimisation) with
 50 observations in a 4-D box, for an exploration and a diversity pick; median of repeats after a
 warm-up (compile time reported separately).
@@ -65,6 +69,32 @@ def run_diversity(args):
     return rows
 
 
+def maximin_design(count, dim, rng, tries):
+    """The best of `tries` uniform random designs by their smallest pairwise distance."""
+    best, best_gap = None, -1.0
+    for _ in range(tries):
+        points = rng.uniform(size=(count, dim))
+        gaps = np.linalg.norm(points[:, None] - points[None], axis=-1) + 9.0 * np.eye(count)
+        if gaps.min() > best_gap:
+            best, best_gap = points, gaps.min()
+    return best
+
+
+def space_filling_reference(landscapes, count, designs=5, tries=300):
+    """What spreading points alone achieves: for each landscape, the expected distinct
+    strategies of `count` uniform random points (from the strategies' volumes) and the mean over
+    `designs` maximin designs of `count` points. Returns the two means over the landscapes."""
+    rng = np.random.default_rng(0)
+    expected_random, maximin = [], []
+    for seed in range(landscapes):
+        landscape = StrategyLandscape(LandscapeSettings(seed=seed))
+        volumes = landscape.volumes(50_000)
+        expected_random.append(float(np.sum(1.0 - (1.0 - volumes) ** count)))
+        maximin.append(np.mean([len(set(landscape.label(maximin_design(count, 4, rng, tries))
+                                         .tolist())) for _ in range(designs)]))
+    return float(np.mean(expected_random)), float(np.mean(maximin))
+
+
 def time_decisions(repeats):
     """Seconds to plan one exploration and one diversity pick with 50 observations."""
     landscape = StrategyLandscape(LandscapeSettings(seed=0))
@@ -102,6 +132,7 @@ def main(argv=None):
     parser.add_argument("--json", type=Path, default=DEFAULT_JSON)
     args = parser.parse_args(argv)
     args.checkpoints = sorted({c for c in (10, 20) if c <= args.budget} | {args.budget})
+    reference = space_filling_reference(args.landscapes, args.checkpoints[0])
     decisions = time_decisions(args.repeats)
     rows = run_diversity(args)
     table = summary(rows, args.checkpoints)
@@ -114,6 +145,9 @@ def main(argv=None):
     lines.append(f"bds / random at {args.checkpoints[0]}: "
                  f"{table['bds'][args.checkpoints[0]][0] / random_10:.2f}; bds-q4 / bds: "
                  f"{table['bds-q4'][args.checkpoints[0]][0] / table['bds'][args.checkpoints[0]][0]:.2f}")
+    lines.append(f"spreading points alone, {args.checkpoints[0]} points: uniform random "
+                 f"(expected, from the volumes) {reference[0]:.2f}, maximin designs "
+                 f"{reference[1]:.2f} distinct strategies ({reference[1] / reference[0]:.2f}×)")
     for kind, t in decisions.items():
         lines.append(f"one {kind} decision with 50 observations: median {t['median_s']:.3f} s "
                      f"(first call, with compilation: {t['first_call_s']:.2f} s)")
@@ -121,6 +155,7 @@ def main(argv=None):
     record = {"command": shlex.join([sys.executable, *sys.argv]), "machine": machine_info(),
               "landscapes": args.landscapes,
               "summary": {m: {str(c): v for c, v in t.items()} for m, t in table.items()},
+              "space_filling": {"expected_random": reference[0], "maximin": reference[1]},
               "decisions": decisions, "rows": rows}
     write_text_atomic(args.json, json.dumps(record, indent=2) + "\n")
 
