@@ -50,15 +50,14 @@ def _select(selector, values):
 
 
 def _to_levels(topology: Topology, link_data):
-    """Per-link arrays (n+1, ...) → the level table's layout (n_levels, width, ...), by static
-    slices (a gather or scatter over the batch runs slowly on CPU)."""
-    return _map(lambda d: jnp.stack([jnp.stack([d[link] for link in row])
-                                     for row in topology.levels]), link_data)
+    """Per-link arrays (n+1, ...) → the level table's layout (n_levels, width, ...)."""
+    return _map(lambda d: d[jnp.asarray(topology.levels)], link_data)
 
 
 def _from_levels(topology: Topology, root, per_level):
     """The inverse of `_to_levels` for one tree of values: the root's value, each link's value
-    from its level-table slot, and a zero dummy row → (n+1, ...)."""
+    from its level-table slot, and a zero dummy row → (n+1, ...). Written as static slices: the
+    scatter it replaces ran slowly over a batch on CPU."""
     slot = {int(link): (k, w) for (k, w), link in np.ndenumerate(topology.levels)
             if link < topology.n_links}
     return _map(lambda r, v: jnp.stack([r.astype(v.dtype)]
