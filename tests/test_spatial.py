@@ -42,6 +42,16 @@ def test_plucker_transforms_and_their_fast_forms():
     np.testing.assert_allclose(spatial.plucker(rotation2, translation2) @ x, composed, atol=1e-12)
     inverse = spatial.plucker(rotation.T, -rotation @ translation)
     np.testing.assert_allclose(inverse @ x, np.eye(6), atol=1e-12)
+    # An inertia moved to the parent by blocks equals Xᵀ I X with the 6×6 transform, also for a
+    # non-symmetric matrix (the block form transforms all four blocks) and a batch of them.
+    matrices = jnp.asarray(RNG.normal(size=(2, 6, 6)))
+    for inertia in (matrices[0] @ matrices[0].T, matrices[1]):
+        np.testing.assert_allclose(spatial.inertia_to_parent(rotation, translation, inertia),
+                                   x.T @ inertia @ x, atol=1e-12)
+    batch = spatial.inertia_to_parent(jnp.stack([rotation, rotation2]),
+                                      jnp.stack([translation, translation2]), matrices)
+    x2 = spatial.plucker(rotation2, translation2)
+    np.testing.assert_allclose(batch[1], x2.T @ matrices[1] @ x2, atol=1e-12)
 
 
 def test_spatial_inertia_matches_rigid_body_momentum():
