@@ -23,8 +23,7 @@ import numpy as np
 
 from agents import train_commands
 from agents import config as config_io
-from jaxsim import render
-from jaxsim import allocator
+from jaxsim import allocator, render
 from jaxsim.atomic import write_text_atomic
 from spd import machine_info, reference_data
 

@@ -17,8 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import pvae_commands
-from jaxsim import characters, motion, render
-from jaxsim import allocator
+from jaxsim import allocator, characters, motion, render
 from jaxsim.atomic import write_text_atomic
 from jaxsim.motion import retarget as rt
 from spd import machine_info, reference_data

@@ -35,9 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsim import allocator
+from jaxsim import allocator, characters, dynamics, rotations
 from jaxsim.atomic import write_text_atomic
-from jaxsim import characters, dynamics, rotations
 
 CHARACTERS = {
     "humanoid": characters.humanoid,
