@@ -182,8 +182,6 @@ def build_parser():
 
 
 def main(argv=None):
-    if argv is None:                  # a real command line, not a call from Python
-        allocator.restart_with_tunables()
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
@@ -193,5 +191,11 @@ def main(argv=None):
     return 0
 
 
+def command_line():
+    """The `takeoff` executable: restart with the malloc tunables (jaxsim.allocator), then run."""
+    allocator.restart_with_tunables()
+    return main()
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(command_line())

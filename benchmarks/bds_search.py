@@ -90,7 +90,8 @@ def space_filling_reference(landscapes, count, designs=5, tries=300):
         landscape = StrategyLandscape(LandscapeSettings(seed=seed))
         volumes = landscape.volumes(50_000)
         expected_random.append(float(np.sum(1.0 - (1.0 - volumes) ** count)))
-        maximin.append(np.mean([len(set(landscape.label(maximin_design(count, 4, rng, tries))
+        dim = landscape.settings.dim
+        maximin.append(np.mean([len(set(landscape.label(maximin_design(count, dim, rng, tries))
                                          .tolist())) for _ in range(designs)]))
     return float(np.mean(expected_random)), float(np.mean(maximin))
 

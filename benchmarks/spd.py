@@ -25,6 +25,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import shlex
 import statistics
 import sys
@@ -118,27 +119,30 @@ def solver_args(model, inputs, method):
 
 
 def compile_and_time(fn, args, repeats):
-    """Compile seconds of jit(fn) on `args`, the outputs of one warm-up call, and the seconds of
-    `repeats` further calls, each ended with `jax.block_until_ready`."""
+    """Compile seconds of jit(fn) on `args`, the outputs of one warm-up call, the seconds of
+    `repeats` further calls, each ended with `jax.block_until_ready`, and the process's minor page
+    faults per call over those calls (see jaxsim.allocator)."""
     start = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - start
     outputs = jax.block_until_ready(compiled(*args))
     times = []
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     for _ in range(repeats):
         start = time.perf_counter()
         jax.block_until_ready(compiled(*args))
         times.append(time.perf_counter() - start)
-    return compile_s, outputs, times
+    faults = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults) / repeats
+    return compile_s, outputs, times, faults
 
 
 def measure(method, args, repeats):
-    """Compile seconds, per-call seconds, and whether the outputs of jit(vmap(solver)) on `args`
-    are all finite (a solver that returns NaN is not worth timing, so the caller warns)."""
-    compile_s, outputs, times = compile_and_time(
+    """Compile seconds, per-call seconds, page faults per call, and whether the outputs of
+    jit(vmap(solver)) on `args` are all finite (a solver that returns NaN is not worth timing, so the caller warns)."""
+    compile_s, outputs, times, faults = compile_and_time(
         jax.vmap(solver(method), in_axes=(None, 0, 0, 0)), args, repeats)
     finite = all(bool(jnp.isfinite(x).all()) for x in jax.tree.leaves(outputs))
-    return compile_s, times, finite
+    return compile_s, times, faults, finite
 
 
 def default_repeats(batch):
@@ -154,19 +158,21 @@ def run(args):
             inputs = random_inputs(model, batch, args.seed)
             repeats = args.repeats or default_repeats(batch)
             for method in args.methods:
-                compile_s, times, finite = measure(method, solver_args(model, inputs, method),
-                                                   repeats)
+                compile_s, times, faults, finite = measure(
+                    method, solver_args(model, inputs, method), repeats)
                 median_us = 1e6 * statistics.median(times)
                 rows.append({
                     "character": name, "dof": model.nv, "dtype": str(model.mass.dtype),
                     "batch": batch, "method": method,
                     "compile_s": compile_s, "repeats": repeats, "median_us": median_us,
                     "min_us": 1e6 * min(times), "us_per_character": median_us / batch,
-                    "times_us": [1e6 * t for t in times], "finite": finite,
+                    "times_us": [1e6 * t for t in times], "page_faults_per_call": faults,
+                    "finite": finite,
                 })
                 warning = "" if finite else "  WARNING: non-finite output"
                 print(f"{name:9s} batch {batch:5d} {method:6s} compile {compile_s:7.2f} s  "
-                      f"{median_us:12.1f} us/call{warning}", file=sys.stderr, flush=True)
+                      f"{median_us:12.1f} us/call  {faults:8.0f} page faults/call{warning}",
+                      file=sys.stderr, flush=True)
     return rows
 
 

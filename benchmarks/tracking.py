@@ -186,7 +186,7 @@ def _batched(state, batch):
 
 def _timed(fn, args, repeats):
     """Compile seconds and the median of `repeats` run times of jit(fn)(*args)."""
-    compile_s, _, times = compile_and_time(fn, args, repeats)
+    compile_s, _, times, _ = compile_and_time(fn, args, repeats)
     return compile_s, statistics.median(times)
 
 

@@ -9,8 +9,8 @@ reuse; the process's resident size then stays at its peak, which a simulation ru
 
 glibc reads these tunables only when a process starts, and `mallopt` refuses an mmap threshold
 above 32 MiB (XLA's temporary buffer is larger), so they must be in the environment before Python
-starts. `restart_with_tunables` re-executes the current command with them set; the `takeoff` CLI
-and the benchmarks call it first. In your own scripts, start Python with
+starts. `restart_with_tunables` re-executes the current command with them set (once: the restarted
+process finds them set); the `takeoff` command and the benchmarks call it first. In your own scripts, start Python with
 
     GLIBC_TUNABLES=glibc.malloc.mmap_threshold=536870912:glibc.malloc.trim_threshold=536870912
 
@@ -27,7 +27,8 @@ TUNABLES = ("glibc.malloc.mmap_threshold=536870912",
 
 def tuned_environment(environ):
     """The environment with the tunables added, or None when there is nothing to change (not
-    glibc, or GLIBC_TUNABLES already chooses an mmap threshold)."""
+    glibc, or GLIBC_TUNABLES already chooses an mmap threshold). A trim threshold the user set is
+    kept."""
     try:
         libc = os.confstr("CS_GNU_LIBC_VERSION") or ""
     except (AttributeError, ValueError, OSError):
@@ -35,14 +36,16 @@ def tuned_environment(environ):
     current = environ.get("GLIBC_TUNABLES", "")
     if not libc.startswith("glibc") or "glibc.malloc.mmap_threshold" in current:
         return None
-    return {**environ, "GLIBC_TUNABLES": ":".join(filter(None, [current, *TUNABLES]))}
+    added = [t for t in TUNABLES if t.split("=")[0] not in current]
+    return {**environ, "GLIBC_TUNABLES": ":".join(filter(None, [current, *added]))}
 
 
 def restart_with_tunables():
     """Re-execute this process's command with the tunables in its environment (see the module
-    docstring); returns without doing anything when they are set already or do not apply."""
+    docstring). Returns without doing anything when they are set already, do not apply, or the
+    command cannot be run again (a script read from standard input)."""
     environ = tuned_environment(os.environ)
-    if environ is None:
+    if environ is None or len(sys.orig_argv) < 2 or sys.argv[0] in ("", "-"):
         return
     sys.stdout.flush()
     sys.stderr.flush()

@@ -209,18 +209,24 @@ def point_velocities(rot_w, pos_w, v_body, links, points):
     return mat_vec(r, v[:, 3:] + jnp.cross(v[:, :3], local))
 
 
+def _sum_groups(values, groups, count):
+    """Σ of the rows of `values` (C, ...) in each of `count` groups → (count, ...), where
+    `groups` (C,) is a NumPy array known when tracing (the contact layout). Written as static
+    slices and adds: a scatter-add or a one-hot `dot` runs slowly over a batch on CPU."""
+    groups = np.asarray(groups)
+    zero = jnp.zeros(values.shape[1:], values.dtype)
+    return jnp.stack([sum((values[c] for c in np.flatnonzero(groups == g)), zero)
+                      for g in range(count)])
+
+
 def link_wrenches(rot_w, pos_w, links, points, forces, n_links):
     """Spatial forces [x × f; f] on each link (n_links, 6), in link coordinates, from world
-    forces applied at world points."""
+    forces applied at world points; `links` (C,) is static (NumPy), as in `ContactLayout`."""
     r, o = rot_w[links], pos_w[links]
     f_local = mat_vec(transpose(r), forces)
     x_local = mat_vec(transpose(r), points - o)
     wrench = jnp.concatenate([jnp.cross(x_local, f_local), f_local], -1)
-    # The contacts' links are known when tracing: static slices and adds, not a scatter-add
-    # (XLA on CPU runs batched scatters slowly).
-    zero = jnp.zeros(wrench.shape[1:], wrench.dtype)
-    return jnp.stack([sum((wrench[c] for c in np.flatnonzero(np.asarray(links) == link)), zero)
-                      for link in range(n_links)])
+    return _sum_groups(wrench, links, n_links)
 
 
 def contact_forces(model: Model, world: World, rot_w, pos_w, v_body, stretch, dt):
@@ -248,6 +254,7 @@ def contact_forces(model: Model, world: World, rot_w, pos_w, v_body, stretch, dt
     next_stretch = jnp.where(touching[:, None], stretch, 0.0)
     force = f_n[:, None] * n + f_t
     f_ext = link_wrenches(rot_w, pos_w, layout.link, x, force, model.n_links)
-    link_hits = jax.nn.one_hot(layout.link, model.n_links, dtype=x.dtype) * touching[:, None]
-    objects = jax.nn.one_hot(layout.obj, len(world.object_names), dtype=x.dtype)
-    return f_ext, next_stretch, (link_hits.T @ objects) > 0
+    n_objects = len(world.object_names)
+    hits = _sum_groups(touching.astype(x.dtype), np.asarray(layout.link) * n_objects
+                       + np.asarray(layout.obj), model.n_links * n_objects)
+    return f_ext, next_stretch, hits.reshape(model.n_links, n_objects) > 0

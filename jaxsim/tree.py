@@ -54,10 +54,10 @@ def _to_levels(topology: Topology, link_data):
     return _map(lambda d: d[jnp.asarray(topology.levels)], link_data)
 
 
-def _from_levels(topology: Topology, root, per_level):
-    """The inverse of `_to_levels` for one tree of values: the root's value, each link's value
-    from its level-table slot, and a zero dummy row → (n+1, ...). Written as static slices: the
-    scatter it replaces ran slowly over a batch on CPU."""
+def from_levels(topology: Topology, root, per_level):
+    """Values in the level table's layout (n_levels, width, ...) back to per-link rows: the root's
+    value, each link's value from its slot, and a zero dummy row → (n+1, ...). Static slices, as
+    a scatter runs slowly over a batch on CPU."""
     slot = {int(link): (k, w) for (k, w), link in np.ndenumerate(topology.levels)
             if link < topology.n_links}
     return _map(lambda r, v: jnp.stack([r.astype(v.dtype)]
@@ -85,7 +85,7 @@ def scan_outward(topology: Topology, step, root_value, link_data, level_data=Non
         return values, values
 
     _, per_level = lax.scan(body, first, (selectors, _to_levels(topology, link_data), level_data))
-    return _from_levels(topology, root_value, per_level)
+    return from_levels(topology, root_value, per_level)
 
 
 def scan_inward(topology: Topology, step, own, link_data):

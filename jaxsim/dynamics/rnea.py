@@ -5,7 +5,7 @@ import jax.numpy as jnp
 from jaxsim import spatial
 from jaxsim.dynamics.common import bias_forces, external_forces, gravity_vector, outward_pass
 from jaxsim.model import Model
-from jaxsim.tree import scan_inward, scatter_slots
+from jaxsim.tree import from_levels, scan_inward, scatter_slots
 
 
 def rnea(model: Model, q, qd, qdd, f_ext=None, gravity=None):
@@ -25,8 +25,7 @@ def rnea(model: Model, q, qd, qdd, f_ext=None, gravity=None):
 
     f_root, tau_levels = scan_inward(model.topology, step, forces,
                                       (links["e"], links["r"], links["s"]))
-    tau_slots = jnp.zeros_like(links["qd_slots"]).at[jnp.asarray(model.topology.levels)].set(
-        tau_levels)
+    tau_slots = from_levels(model.topology, jnp.zeros_like(links["qd_slots"][0]), tau_levels)
     return scatter_slots(model.topology, tau_slots, f_root)
 
 

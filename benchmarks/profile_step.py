@@ -1,0 +1,122 @@
+"""Where a batched simulation step spends its time: the compiled kernels, longest first, each with
+the source line it came from.
+
+Runs the contact benchmark's rollout (the humanoid dropped on the ground, maba, contacts and joint
+limits, 600 Hz, float32; see tracking.py `contacts`) or, with --solve-only, one MABA solve, at
+the given batch; records a `jax.profiler` trace of a few calls and sums each kernel's duration.
+Kernels are named by XLA (`add_add_fusion.2`, `wrapped_scatter.9`, …); the optimised HLO's
+metadata gives the innermost Python line that produced each one.
+
+Run:  python benchmarks/profile_step.py                 (contact step, batch 4096, top 25)
+      python benchmarks/profile_step.py --solve-only --batch 4096 --top 10
+"""
+
+import argparse
+import collections
+import gzip
+import json
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+from jaxsim import allocator, characters, dynamics, simulation, tracking
+from jaxsim.model import rest_pose
+from jaxsim.world import make_world
+from spd import random_inputs
+
+DT = 1.0 / 600.0
+
+
+def contact_rollout(batch, steps):
+    model = tracking.tracking_model(characters.humanoid(), root_gains=(0.0, 0.0))
+    world = make_world()
+    low, _ = characters.vertical_extent(model)
+    q0 = rest_pose(model, -low + 0.05)
+    targets = jnp.tile(q0, (steps, 1))
+    states = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape),
+                          simulation.init_state(model, world, q0))
+    run = jax.jit(jax.vmap(lambda s: simulation.simulate(model, world, s, targets, DT)[0]))
+    return run, (states,)
+
+
+def maba_solve(batch):
+    model = characters.humanoid()
+    inputs = random_inputs(model, batch, 0)
+    solve = jax.jit(jax.vmap(lambda m, q, qd, t: dynamics.solve_spd(m, q, qd, t, DT, "maba"),
+                             in_axes=(None, 0, 0, 0)))
+    return solve, (model, inputs["q"], inputs["qd"], inputs["target"])
+
+
+def source_lines(hlo_text):
+    """Kernel name → 'file:line (function)' of the innermost frame in its metadata."""
+    lines = hlo_text.split("\n")
+
+    def table(title, pattern):
+        start = lines.index(title) + 1
+        out = {}
+        for line in lines[start:]:
+            match = re.match(pattern, line)
+            if not match:
+                break
+            out[int(match.group(1))] = match.groups()[1:]
+        return out
+    files = table("FileNames", r'\s*(\d+) "(.*)"')
+    functions = table("FunctionNames", r'\s*(\d+) "(.*)"')
+    locations = table("FileLocations", r"\s*(\d+) \{file_name_id=(\d+) function_name_id=(\d+) "
+                      r"line=(\d+)")
+    frames = table("StackFrames", r"\s*(\d+) \{file_location_id=(\d+)")
+    where = {name: "no source recorded" for name in re.findall(r"%([\w.\-]+) = ", hlo_text)}
+    for match in re.finditer(r"%([\w.\-]+) = .*?stack_frame_id=(\d+)", hlo_text):
+        file_id, function_id, line = locations[int(frames[int(match.group(2))][0])]
+        path = files[int(file_id)][0]
+        path = "jaxsim/" + path.split("/jaxsim/")[-1] if "/jaxsim/" in path else path
+        where[match.group(1)] = f"{path}:{line} ({functions[int(function_id)][0]})"
+    return where
+
+
+def profile(fn, args, calls):
+    """Per-kernel total microseconds over `calls` calls, and the wall time of those calls."""
+    jax.block_until_ready(fn(*args))                           # compile and warm up
+    with tempfile.TemporaryDirectory() as folder:
+        jax.profiler.start_trace(folder, create_perfetto_trace=True)
+        for _ in range(calls):
+            jax.block_until_ready(fn(*args))
+        jax.profiler.stop_trace()
+        trace = next(Path(folder).rglob("*.trace.json.gz"))
+        events = json.load(gzip.open(trace))["traceEvents"]
+    totals = collections.Counter()
+    for event in events:
+        if event.get("ph") == "X":
+            totals[event["name"]] += event["dur"]
+    wall = totals.pop("ThunkExecutor::Execute (wait for completion)", None)
+    return totals, wall
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--batch", type=int, default=4096)
+    parser.add_argument("--steps", type=int, default=10, help="steps per rollout call")
+    parser.add_argument("--calls", type=int, default=3)
+    parser.add_argument("--top", type=int, default=25)
+    parser.add_argument("--solve-only", action="store_true", help="profile one MABA solve")
+    args = parser.parse_args()
+    fn, fn_args = (maba_solve(args.batch) if args.solve_only
+                   else contact_rollout(args.batch, args.steps))
+    where = source_lines(fn.lower(*fn_args).compile().as_text())
+    totals, wall = profile(fn, fn_args, args.calls)
+    kernels = [(name, us) for name, us in totals.most_common() if name in where]
+    print(f"wall time per call: {wall / args.calls / 1e3:.1f} ms" if wall else
+          "wall time per call: not in the trace")
+    print(f"{'ms/call':>9}  {'share':>6}  kernel  (source)")
+    for name, us in kernels[:args.top]:
+        share = f"{100 * us / wall:5.1f}%" if wall else "   –  "
+        print(f"{us / args.calls / 1e3:9.2f}  {share}  {name}  ({where[name]})")
+
+
+if __name__ == "__main__":
+    allocator.restart_with_tunables()
+    sys.exit(main())
