@@ -20,6 +20,7 @@ warm-up (compile time reported separately).
 
 Run:  python benchmarks/bds_search.py                       (50 landscapes)
       python benchmarks/bds_search.py --landscapes 5 --budget 10
+      python benchmarks/bds_search.py --sweep --budget 10         (the splits of Algorithm 1)
 Writes JSON (default benchmarks/results/bds.json) and prints a markdown table.
 """
 
@@ -40,6 +41,21 @@ from bds.search import SearchSettings, plan_round, search
 from spd import machine_info, markdown_table
 
 DEFAULT_JSON = Path(__file__).resolve().parent / "results" / "bds.json"
+# --sweep: Algorithm 1's split between random, exploration and diversity picks, at q = 1
+# ("i" initial random picks, "e" exploration and "d" diversity picks per cycle).
+SWEEP = {
+    "random": dict(strategy="random"),
+    "i4 e3 d3": dict(strategy="bds"),
+    "i2 e3 d3": dict(strategy="bds", initial=2),
+    "i1 e3 d3": dict(strategy="bds", initial=1),
+    "i4 e1 d3": dict(strategy="bds", explore=1),
+    "i4 e0 d1": dict(strategy="bds", explore=0, diverse=1),
+    "i4 e1 d0": dict(strategy="bds", explore=1, diverse=0),
+    "i2 e1 d0": dict(strategy="bds", initial=2, explore=1, diverse=0),
+    "i1 e1 d0": dict(strategy="bds", initial=1, explore=1, diverse=0),
+    "i2 e3 d1": dict(strategy="bds", initial=2, explore=3, diverse=1),
+    "i2 e1 d1": dict(strategy="bds", initial=2, explore=1, diverse=1),
+}
 METHODS = {
     "random": dict(strategy="random"),
     "bds": dict(strategy="bds", batch=1),
@@ -52,11 +68,11 @@ def distinct_counts(landscape, x, checkpoints):
     return {c: len(set(labels[:c].tolist())) for c in checkpoints}
 
 
-def run_diversity(args):
+def run_diversity(args, methods=METHODS):
     rows = []
     for seed in range(args.landscapes):
         landscape = StrategyLandscape(LandscapeSettings(seed=seed))
-        for method, options in METHODS.items():
+        for method, options in methods.items():
             settings = SearchSettings(budget=args.budget, seed=seed, **options)
             start = time.perf_counter()
             result = search(landscape, np.zeros(4), np.ones(4), settings)
@@ -64,7 +80,7 @@ def run_diversity(args):
             rows.append({"landscape": seed, "method": method, "seconds":
                          time.perf_counter() - start, **{f"found@{c}": counts[c]
                                                          for c in args.checkpoints}})
-            print(f"landscape {seed:3d} {method:7s} " + "  ".join(
+            print(f"landscape {seed:3d} {method:12s} " + "  ".join(
                 f"@{c}: {counts[c]}" for c in args.checkpoints), file=sys.stderr, flush=True)
     return rows
 
@@ -115,14 +131,32 @@ def time_decisions(repeats):
     return out
 
 
-def summary(rows, checkpoints):
+def summary(rows, checkpoints, methods=METHODS):
     table = {}
-    for method in METHODS:
+    for method in methods:
         mine = [r for r in rows if r["method"] == method]
         table[method] = {c: (float(np.mean([r[f"found@{c}"] for r in mine])),
                              float(np.std([r[f"found@{c}"] for r in mine]) / np.sqrt(len(mine))))
                          for c in checkpoints}
     return table
+
+
+def sweep(args):
+    """Distinct strategies at the first checkpoint for each SWEEP setting, with its ratio to
+    random search."""
+    rows = run_diversity(args, SWEEP)
+    table = summary(rows, args.checkpoints, SWEEP)
+    first = args.checkpoints[0]
+    random_mean = table["random"][first][0]
+    print(markdown_table(
+        ["setting", f"distinct @{first} (mean ± s.e.)", "÷ random"],
+        [[name, f"{t[first][0]:.2f} ± {t[first][1]:.2f}", f"{t[first][0] / random_mean:.2f}"]
+         for name, t in table.items()]))
+    record = {"command": shlex.join([sys.executable, *sys.argv]), "machine": machine_info(),
+              "landscapes": args.landscapes, "settings": SWEEP,
+              "summary": {m: {str(c): v for c, v in t.items()} for m, t in table.items()},
+              "rows": rows}
+    write_text_atomic(args.json, json.dumps(record, indent=2) + "\n")
 
 
 def main(argv=None):
@@ -131,8 +165,15 @@ def main(argv=None):
     parser.add_argument("--budget", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=5, help="timed decisions per kind")
     parser.add_argument("--json", type=Path, default=DEFAULT_JSON)
+    parser.add_argument("--sweep", action="store_true",
+                        help="compare Algorithm 1's splits (SWEEP) instead; JSON to "
+                             "results/bds_sweep.json unless --json is given")
     args = parser.parse_args(argv)
     args.checkpoints = sorted({c for c in (10, 20) if c <= args.budget} | {args.budget})
+    if args.sweep:
+        if args.json == DEFAULT_JSON:
+            args.json = DEFAULT_JSON.with_name("bds_sweep.json")
+        return sweep(args)
     reference = space_filling_reference(args.landscapes, args.checkpoints[0])
     decisions = time_decisions(args.repeats)
     rows = run_diversity(args)
