@@ -152,10 +152,15 @@ def sweep(args):
         ["setting", f"distinct @{first} (mean ± s.e.)", "÷ random"],
         [[name, f"{t[first][0]:.2f} ± {t[first][1]:.2f}", f"{t[first][0] / random_mean:.2f}"]
          for name, t in table.items()]))
+    write_record(args, table, rows, settings=SWEEP)
+
+
+def write_record(args, table, rows, **extra):
+    """The run's JSON: command, machine, the summary table, `extra` entries and every row."""
     record = {"command": shlex.join([sys.executable, *sys.argv]), "machine": machine_info(),
-              "landscapes": args.landscapes, "settings": SWEEP,
+              "landscapes": args.landscapes,
               "summary": {m: {str(c): v for c, v in t.items()} for m, t in table.items()},
-              "rows": rows}
+              **extra, "rows": rows}
     write_text_atomic(args.json, json.dumps(record, indent=2) + "\n")
 
 
@@ -194,12 +199,8 @@ def main(argv=None):
         lines.append(f"one {kind} decision with 50 observations: median {t['median_s']:.3f} s "
                      f"(first call, with compilation: {t['first_call_s']:.2f} s)")
     print("\n".join(lines))
-    record = {"command": shlex.join([sys.executable, *sys.argv]), "machine": machine_info(),
-              "landscapes": args.landscapes,
-              "summary": {m: {str(c): v for c, v in t.items()} for m, t in table.items()},
-              "space_filling": {"expected_random": reference[0], "maximin": reference[1]},
-              "decisions": decisions, "rows": rows}
-    write_text_atomic(args.json, json.dumps(record, indent=2) + "\n")
+    write_record(args, table, rows, decisions=decisions,
+                 space_filling={"expected_random": reference[0], "maximin": reference[1]})
 
 
 if __name__ == "__main__":

@@ -1,9 +1,9 @@
 """Where a batched simulation step spends its time: the compiled kernels, longest first, each with
 the source line it came from.
 
-Runs the contact benchmark's rollout (the humanoid dropped on the ground, maba, contacts and joint
-limits, 600 Hz, float32; see tracking.py `contacts`) or, with --solve-only, one MABA solve, at
-the given batch; records a `jax.profiler` trace of a few calls and sums each kernel's duration.
+Runs the contact benchmark's rollout (`tracking.contact_scene`: the humanoid dropped on the
+ground, maba, contacts and joint limits, 600 Hz, float32) or, with --solve-only, one MABA solve
+as `spd.py` times it, at the given batch; records a `jax.profiler` trace of a few calls and sums each kernel's duration.
 Kernels are named by XLA (`add_add_fusion.2`, `wrapped_scatter.9`, …); the optimised HLO's
 metadata gives the innermost Python line that produced each one.
 
@@ -21,34 +21,21 @@ import tempfile
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 
-from jaxsim import allocator, characters, dynamics, simulation, tracking
-from jaxsim.model import rest_pose
-from jaxsim.world import make_world
-from spd import random_inputs
-
-DT = 1.0 / 600.0
+from jaxsim import allocator, characters
+from spd import random_inputs, solver, solver_args
+from tracking import batched_states, contact_scene
 
 
 def contact_rollout(batch, steps):
-    model = tracking.tracking_model(characters.humanoid(), root_gains=(0.0, 0.0))
-    world = make_world()
-    low, _ = characters.vertical_extent(model)
-    q0 = rest_pose(model, -low + 0.05)
-    targets = jnp.tile(q0, (steps, 1))
-    states = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape),
-                          simulation.init_state(model, world, q0))
-    run = jax.jit(jax.vmap(lambda s: simulation.simulate(model, world, s, targets, DT)[0]))
-    return run, (states,)
+    state, rollout = contact_scene(steps)
+    return jax.jit(rollout), (batched_states(state, batch),)
 
 
 def maba_solve(batch):
     model = characters.humanoid()
-    inputs = random_inputs(model, batch, 0)
-    solve = jax.jit(jax.vmap(lambda m, q, qd, t: dynamics.solve_spd(m, q, qd, t, DT, "maba"),
-                             in_axes=(None, 0, 0, 0)))
-    return solve, (model, inputs["q"], inputs["qd"], inputs["target"])
+    args = solver_args(model, random_inputs(model, batch, 0), "maba")
+    return jax.jit(jax.vmap(solver("maba"), in_axes=(None, 0, 0, 0))), args
 
 
 def source_lines(hlo_text):

@@ -172,7 +172,7 @@ def plot_stability(rows, case, path):
 # speed
 
 
-def _batched(state, batch):
+def batched_states(state, batch):
     """`batch` copies of a state, split over the host devices when there are several (run with
     XLA_FLAGS=--xla_force_host_platform_device_count=2 to use both cores; DESIGN.md)."""
     states = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), state)
@@ -197,7 +197,7 @@ def speed(args):
         model, clip, dt = task(row, jnp.float32)
         poses, velocities = tracking.reference_targets(clip, dt, args.steps)
         for batch in args.batch:
-            states = _batched(tracking.initial_state(model, world, clip), batch)
+            states = batched_states(tracking.initial_state(model, world, clip), batch)
             for method in args.methods:
                 if batch > 1 and method == "sparse" and not args.sparse_batched:
                     continue
@@ -236,20 +236,27 @@ def speed(args):
 # contacts
 
 
-def contacts(args):
+def contact_scene(steps, torque_limits=False):
+    """The contact benchmark's setup: the humanoid (joints held by SPD, root free) dropped from
+    5 cm onto the ground, maba, contacts and joint limits, 600 Hz, float32. Returns its initial
+    state and `rollout(states)`, `steps` steps of a batch of such states."""
     model = tracking.tracking_model(characters.humanoid(), root_gains=(0.0, 0.0))
-    world = make_world(torque_limits=args.torque_limits)
+    world = make_world(torque_limits=torque_limits)
     low, _ = characters.vertical_extent(model)
-    q0 = rest_pose(model, -low + 0.05)                     # dropped from 5 cm: falls, lands
-    targets = jnp.tile(q0, (args.steps, 1))
+    q0 = rest_pose(model, -low + 0.05)
+    targets = jnp.tile(q0, (steps, 1))
+
+    def rollout(states):
+        return jax.vmap(lambda s: simulation.simulate(model, world, s, targets, 1 / 600)[0])(
+            states)
+    return simulation.init_state(model, world, q0), rollout
+
+
+def contacts(args):
+    state, rollout = contact_scene(args.steps, args.torque_limits)
     rows = []
     for batch in args.batch:
-        states = _batched(simulation.init_state(model, world, q0), batch)
-
-        def rollout(states):
-            return jax.vmap(lambda s: simulation.simulate(model, world, s, targets,
-                                                          1 / 600)[0])(states)
-
+        states = batched_states(state, batch)
         compile_s, run_s = _timed(rollout, (states,), args.repeats)
         rows.append({"batch": batch, "devices": jax.device_count(), "steps": args.steps,
                      "compile_s": compile_s,

@@ -56,13 +56,20 @@ def _to_levels(topology: Topology, link_data):
 
 def from_levels(topology: Topology, root, per_level):
     """Values in the level table's layout (n_levels, width, ...) back to per-link rows: the root's
-    value, each link's value from its slot, and a zero dummy row → (n+1, ...). Static slices, as
-    a scatter runs slowly over a batch on CPU."""
-    slot = {int(link): (k, w) for (k, w), link in np.ndenumerate(topology.levels)
-            if link < topology.n_links}
-    return _map(lambda r, v: jnp.stack([r.astype(v.dtype)]
-                                       + [v[slot[link]] for link in range(1, topology.n_links)]
-                                       + [jnp.zeros(r.shape, v.dtype)]), root, per_level)
+    value, each link's value from its slot, and a zero dummy row → (n+1, ...). One gather with a
+    static index, as a scatter runs slowly over a batch on CPU."""
+    levels = topology.levels
+    index = np.full(topology.n_links + 1, levels.size + 1)        # the dummy: the zero row
+    index[0] = 0                                                   # the root
+    real = levels < topology.n_links
+    index[levels[real]] = 1 + np.flatnonzero(real.ravel())
+    index = jnp.asarray(index)
+
+    def gather(r, v):
+        rows = v.reshape((levels.size,) + v.shape[2:])
+        zero = jnp.zeros((1,) + r.shape, v.dtype)
+        return jnp.concatenate([r.astype(v.dtype)[None], rows, zero])[index]
+    return _map(gather, root, per_level)
 
 
 def scan_outward(topology: Topology, step, root_value, link_data, level_data=None):
