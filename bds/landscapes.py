@@ -14,6 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 
+FEATURE_KINDS = ("spread", "positional")
+
+
 @dataclass(frozen=True)
 class LandscapeSettings:
     """A family of random landscapes: one per seed."""
@@ -22,6 +25,7 @@ class LandscapeSettings:
     feature_dim: int = 1
     noise: float = 0.01             # standard deviation of the feature noise
     large: int = 2                  # strategies that own most of the box
+    features: str = "spread"        # "spread" or "positional" (see StrategyLandscape)
     seed: int = 0
 
     def __post_init__(self):
@@ -33,6 +37,9 @@ class LandscapeSettings:
             raise ValueError(f"large must be between 0 and strategies − 1; got {self.large}")
         if self.noise < 0:
             raise ValueError(f"noise must be non-negative; got {self.noise}")
+        if self.features not in FEATURE_KINDS:
+            raise ValueError(f"features must be one of {', '.join(FEATURE_KINDS)}; got "
+                             f"{self.features!r}")
 
 
 class StrategyLandscape:
@@ -45,7 +52,10 @@ class StrategyLandscape:
         weights = rng.uniform(0.0, 0.01, settings.strategies)
         weights[:settings.large] = rng.uniform(0.2, 0.5, settings.large)
         self.weights = weights
-        self.features = self._spread_features(rng, settings.strategies, settings.feature_dim)
+        if settings.features == "spread":
+            self.features = self._spread_features(rng, settings.strategies, settings.feature_dim)
+        else:
+            self.features = self._positional_features(rng, self.centres, settings.feature_dim)
 
     @staticmethod
     def _spread_features(rng, count, dim):
@@ -57,6 +67,15 @@ class StrategyLandscape:
             gaps = np.min(np.linalg.norm(pool[:, None] - np.array(chosen)[None], axis=-1), axis=1)
             chosen.append(pool[np.argmax(gaps)])
         return np.array(chosen)
+
+    @staticmethod
+    def _positional_features(rng, centres, dim):
+        """Features that follow where a strategy lies: each feature is the projection of the
+        strategies' centres on a random direction, rescaled to [0, 1] over the strategies."""
+        directions = rng.standard_normal((dim, centres.shape[1]))
+        projected = centres @ directions.T
+        low, high = projected.min(0), projected.max(0)
+        return (projected - low) / (high - low)
 
     def label(self, x):
         """Strategy index of each point of x (..., d)."""

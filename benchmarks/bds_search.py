@@ -36,7 +36,7 @@ import numpy as np
 
 from jaxsim import allocator
 from jaxsim.atomic import write_text_atomic
-from bds.landscapes import LandscapeSettings, StrategyLandscape
+from bds.landscapes import FEATURE_KINDS, LandscapeSettings, StrategyLandscape
 from bds.search import SearchSettings, plan_round, search
 from spd import machine_info, markdown_table
 
@@ -71,7 +71,7 @@ def distinct_counts(landscape, x, checkpoints):
 def run_diversity(args, methods=METHODS):
     rows = []
     for seed in range(args.landscapes):
-        landscape = StrategyLandscape(LandscapeSettings(seed=seed))
+        landscape = StrategyLandscape(LandscapeSettings(seed=seed, features=args.features))
         for method, options in methods.items():
             settings = SearchSettings(budget=args.budget, seed=seed, **options)
             start = time.perf_counter()
@@ -169,6 +169,9 @@ def main(argv=None):
     parser.add_argument("--landscapes", type=int, default=50)
     parser.add_argument("--budget", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=5, help="timed decisions per kind")
+    parser.add_argument("--features", choices=FEATURE_KINDS, default="spread",
+                        help="how strategies' features are drawn (bds.landscapes); the regions "
+                             "are the same either way")
     parser.add_argument("--json", type=Path, default=DEFAULT_JSON)
     parser.add_argument("--sweep", action="store_true",
                         help="compare Algorithm 1's splits (SWEEP) instead; JSON to "

@@ -179,6 +179,23 @@ def test_a_log_from_other_settings_is_refused(tmp_path):
                log=log)
 
 
+def test_positional_features_keep_the_regions_and_follow_where_a_strategy_lies():
+    spread = StrategyLandscape(LandscapeSettings(seed=5))
+    positional = StrategyLandscape(LandscapeSettings(seed=5, features="positional"))
+    x = np.random.default_rng(0).uniform(size=(4000, 4))
+    assert np.array_equal(spread.label(x), positional.label(x))
+
+    def affine_residual(landscape):
+        design = np.hstack([landscape.centres, np.ones((len(landscape.centres), 1))])
+        fit = np.linalg.lstsq(design, landscape.features, rcond=None)[0]
+        return np.abs(design @ fit - landscape.features).max()
+
+    # Positional features are one affine function of the regions' centres, spanning [0, 1];
+    # spread features are not (8 strategies, 5 coefficients).
+    assert affine_residual(positional) < 1e-12 < 0.05 < affine_residual(spread)
+    assert positional.features.min() == 0.0 and positional.features.max() == 1.0
+
+
 def write_config(tmp_path, text):
     path = tmp_path / "search.toml"
     path.write_text(text)
@@ -220,6 +237,7 @@ large = 1
     ("[box]\nlower = [0, 0]\nupper = [1, 1]\n", r"\[box\] has 2 dimensions but landscape.dim is 4"),
     ("[box]\nlower = [0, 0, 0, 1]\nupper = [1, 1, 1, 1]\n", "dimension 3 has lower 1.0"),
     ("[search\n", "not valid TOML"),
+    ("[landscape]\nfeatures = 'random'\n", "features must be one of spread, positional"),
 ])
 def test_takeoff_search_config_errors_name_the_key(tmp_path, capsys, text, message):
     config = write_config(tmp_path, text)
