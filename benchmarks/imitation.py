@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from agents import train_commands
@@ -45,6 +46,17 @@ def _timed(fn, *args, repeats):
     return statistics.median(times), first
 
 
+def update_floor(update, args, steps, size=2048):
+    """The floating-point operations of one PPO update and this machine's float32 matmul rate (a
+    size × size product, median of 10): the update cannot run faster than their ratio, however
+    fast the simulation. XLA's cost analysis of the compiled update counts the body of a loop
+    once, so it gives one minibatch step (plus the advantages); times `steps` minibatch steps."""
+    flop = jax.jit(update).lower(*args).compile().cost_analysis()["flops"] * steps
+    a = jnp.ones((size, size), jnp.float32)
+    matmul_s, _ = _timed(jax.jit(jnp.matmul), a, a, repeats=10)
+    return flop, 2 * size ** 3 / matmul_s
+
+
 def speed(args):
     config = config_io.load(CONFIG, train_commands.TrainConfig, args.set)
     trainer = train_commands.make_trainer(config, reference_data("deepmimic"))
@@ -61,12 +73,17 @@ def speed(args):
     iteration_s, iteration_compile = _timed(lambda s: trainer.iteration(s)[1], state,
                                             repeats=args.repeats)
     samples = config.run.samples_per_iteration
+    update_flop, matmul_rate = update_floor(
+        trainer.ppo.update, (p, batch, state.key),
+        config.ppo.epochs * (samples // config.ppo.minibatch_size))
     result = {"machine": machine_info(), "envs": config.run.envs,
               "steps_per_iteration": config.run.steps_per_iteration,
               "samples_per_iteration": samples,
               "iteration_seconds": iteration_s, "samples_per_second": samples / iteration_s,
               "rollout_seconds": rollout_s, "update_seconds": update_s,
               "rollout_share": rollout_s / (rollout_s + update_s),
+              "update_gflop": update_flop / 1e9, "matmul_gflop_per_s": matmul_rate / 1e9,
+              "update_floor_seconds": update_flop / matmul_rate,
               "compile_seconds": {"rollout": rollout_compile, "update": update_compile,
                                   "iteration": iteration_compile}}
     write_text_atomic(RESULTS / "imitation_speed.json", json.dumps(result, indent=2) + "\n")
