@@ -9,22 +9,26 @@ Subcommands (each prints a markdown table and writes JSON to benchmarks/results/
              or above 1 m. No ground: the root is held by its SPD. Writes a PNG plot per character.
   speed      Tables 2.2/2.3 analogue. Simulated steps per second of the tracking task (one
              `simulate` call of --steps steps, median of repeats, compile time apart) for each
-             method, character and batch size, and the share of the step spent in the SPD solve:
-             1 − (time of the same scan with the solve taken out) / (time of the rollout).
+             method, character and batch size, and two shares of the step: the solve's,
+             1 − (the same scan with the solve taken out) / (the rollout), and what SPD adds to
+             plain forward dynamics, 1 − (the rollout with ABA in place of SPD) / (the rollout).
   contacts   Humanoid standing on the ground at 600 Hz (contacts, joint limits, maba; with
              --torque-limits also the two-pass torque limits): character-steps per second and
-             compile time at each batch size.
+             compile time at each batch size; with --mujoco also MuJoCo stepping the same
+             humanoid, for scale (`mujoco_scene`).
   filmstrip  The humanoid tracking the cartwheel clip, drawn as a filmstrip PNG.
   plot       Redraw the stability plots from the last stability JSON.
 
 Run:  python benchmarks/tracking.py stability
       python benchmarks/tracking.py speed --batch 1 --methods dense sparse maba
-      python benchmarks/tracking.py contacts --batch 1 256 4096
+      python benchmarks/tracking.py contacts --batch 1 256 4096 --mujoco
       python benchmarks/tracking.py filmstrip --out docs/cartwheel_tracking.png
 """
 
 import argparse
+import functools
 import json
+import os
 import shlex
 import statistics
 import sys
@@ -196,40 +200,53 @@ def speed(args):
     for row in args.rows:
         model, clip, dt = task(row, jnp.float32)
         poses, velocities = tracking.reference_targets(clip, dt, args.steps)
+        # Plain forward dynamics in place of SPD: ABA with the gains zeroed (so that explicit PD
+        # at these Δt cannot blow up and time NaNs), the rest of the step unchanged.
+        passive = tracking.tracking_model(model, (0.0, 0.0), (0.0, 0.0))
+
+        def rollout(states, poses, velocities, model, method):
+            run = lambda s: simulation.simulate(  # noqa: E731
+                model, world, s, poses, dt, method, target_velocities=velocities)[0]
+            return jax.vmap(run)(states)
+
+        def without_solve(states):
+            # The same scan with the solve taken out (zero acceleration): what is left of a
+            # tracking step is the integration.
+            def body(s, _):
+                return s.replace(q=kinematics.integrate(model, s.q, s.qd, dt)), None
+            run = lambda s: jax.lax.scan(body, s, poses)[0]  # noqa: E731
+            return jax.vmap(run)(states)
+
         for batch in args.batch:
             states = batched_states(tracking.initial_state(model, world, clip), batch)
+            _, aba_s = _timed(functools.partial(rollout, model=passive, method="pd"),
+                              (states, poses, velocities), args.repeats)
+            _, other_s = _timed(without_solve, (states,), args.repeats)
             for method in args.methods:
                 if batch > 1 and method == "sparse" and not args.sparse_batched:
                     continue
-
-                def rollout(states, poses, velocities, method=method):
-                    run = lambda s: simulation.simulate(  # noqa: E731
-                        model, world, s, poses, dt, method, target_velocities=velocities)[0]
-                    return jax.vmap(run)(states)
-
-                def without_spd(states):
-                    # The same scan with the SPD solve taken out (zero acceleration): what is
-                    # left of a tracking step is the integration.
-                    def body(s, _):
-                        return s.replace(q=kinematics.integrate(model, s.q, s.qd, dt)), None
-                    run = lambda s: jax.lax.scan(body, s, poses)[0]  # noqa: E731
-                    return jax.vmap(run)(states)
-
-                compile_s, run_s = _timed(rollout, (states, poses, velocities), args.repeats)
-                _, other_s = _timed(without_spd, (states,), args.repeats)
+                compile_s, run_s = _timed(functools.partial(rollout, model=model, method=method),
+                                          (states, poses, velocities), args.repeats)
                 rows.append({"row": row, "dof": model.nv, "dt": dt, "batch": batch,
                              "method": method, "steps": args.steps, "compile_s": compile_s,
                              "seconds": run_s, "steps_per_s": batch * args.steps / run_s,
-                             "spd_share": 1.0 - other_s / run_s})
+                             "solve_share": 1.0 - other_s / run_s,
+                             "spd_over_aba_share": 1.0 - aba_s / run_s,
+                             "aba_steps_per_s": batch * args.steps / aba_s})
                 print(f"{row} batch {batch} {method}: {rows[-1]['steps_per_s']:.0f} steps/s, "
-                      f"SPD {100 * rows[-1]['spd_share']:.0f}% of a step, "
-                      f"compile {compile_s:.1f} s", file=sys.stderr, flush=True)
+                      f"solve {100 * rows[-1]['solve_share']:.0f}% of a step, SPD over ABA "
+                      f"{100 * rows[-1]['spd_over_aba_share']:.0f}%, compile {compile_s:.1f} s",
+                      file=sys.stderr, flush=True)
     table = markdown_table(
-        ["task", "DoF", "Δt", "batch", "method", "steps/s", "SPD share", "compile s"],
+        ["task", "DoF", "Δt", "batch", "method", "steps/s", "solve share", "SPD over ABA",
+         "compile s"],
         [[r["row"], r["dof"], f"1/{round(1 / r['dt'])}", r["batch"], r["method"],
-          f"{r['steps_per_s']:,.0f}", f"{100 * r['spd_share']:.0f}%", f"{r['compile_s']:.1f}"]
-         for r in rows])
-    return rows, f"Tracking steps per second (all characters together), float32\n\n{table}\n"
+          f"{r['steps_per_s']:,.0f}", f"{100 * r['solve_share']:.0f}%",
+          f"{100 * r['spd_over_aba_share']:.0f}%", f"{r['compile_s']:.1f}"] for r in rows])
+    return rows, (f"Tracking steps per second (all characters together), float32. Solve share: "
+                  f"1 − (the scan with the solve taken out) / (the rollout). SPD over ABA: "
+                  f"1 − (the rollout with plain ABA in place of SPD) / (the rollout).\n\n"
+                  f"{table}\n")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -252,20 +269,84 @@ def contact_scene(steps, torque_limits=False):
     return simulation.init_state(model, world, q0), rollout
 
 
+def mujoco_scene(model, q0, dt, settle_s=1 / 3):
+    """MuJoCo's counterpart of `contact_scene`, for scale: the same humanoid exported with
+    `jaxsim.mjcf.to_mjcf`, contacts between the bodies and the ground only (as ours), every joint
+    pulled to the rest pose by MuJoCo's joint springs with the tracking gains (its implicitfast
+    integrator), dropped from the same pose. It lands, hops once, and from about 1/3 s stands on
+    both feet (4 contacts) while slowly tipping forward; it is down within a second, as joint
+    springs are not SPD. So the timed steps start `settle_s` after the drop. Returns the MjModel,
+    that state (mjSTATE_FULLPHYSICS) and its number of contacts."""
+    import xml.etree.ElementTree as ET
+
+    import mujoco          # in the test extra
+
+    from jaxsim.mjcf import to_mjcf
+    stiffness, damping = tracking.JOINT_GAINS
+    root = ET.fromstring(to_mjcf(model, "humanoid"))
+    root.find("option").attrib.update(timestep=repr(dt), integrator="implicitfast")
+    for geom in root.iter("geom"):
+        ground = geom.get("name") == "ground"
+        geom.attrib.update(contype="1" if ground else "0", conaffinity="0" if ground else "1")
+    for joint in root.iter("joint"):
+        joint.attrib.update(stiffness=repr(stiffness), damping=repr(damping))
+    mj_model = mujoco.MjModel.from_xml_string(ET.tostring(root, encoding="unicode"))
+    data = mujoco.MjData(mj_model)
+    data.qpos[:] = np.asarray(q0, float)
+    for _ in range(round(settle_s / dt)):      # setup, not timed
+        mujoco.mj_step(mj_model, data)
+    kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty(mujoco.mj_stateSize(mj_model, kind))
+    mujoco.mj_getState(mj_model, data, state, kind)
+    return mj_model, state, data.ncon
+
+
+def time_mujoco(mj_model, state, batch, steps, repeats):
+    """Median seconds of `steps` MuJoCo steps of `batch` copies of `state` (mujoco.rollout, one
+    thread per core, one thread at batch 1), and the largest change of a root height."""
+    import mujoco
+    from mujoco import rollout
+
+    threads = 1 if batch == 1 else os.cpu_count()
+    datas = [mujoco.MjData(mj_model) for _ in range(threads)]
+    states = np.tile(state, (batch, 1))
+    times = []
+    for _ in range(repeats + 1):                  # the first call is a warm-up
+        start = time.perf_counter()
+        out, _ = rollout.rollout(mj_model, datas, states, nstep=steps)
+        times.append(time.perf_counter() - start)
+    sink = float(np.max(np.abs(out[:, -1, 2] - state[2])))     # qpos[1], after the time entry
+    return statistics.median(times[1:]), threads, sink
+
+
 def contacts(args):
     state, rollout = contact_scene(args.steps, args.torque_limits)
+    mujoco_setup = (mujoco_scene(characters.humanoid(), state.q, 1 / 600) if args.mujoco
+                    else None)
     rows = []
     for batch in args.batch:
         states = batched_states(state, batch)
         compile_s, run_s = _timed(rollout, (states,), args.repeats)
-        rows.append({"batch": batch, "devices": jax.device_count(), "steps": args.steps,
-                     "compile_s": compile_s,
+        rows.append({"engine": "takeoff maba", "batch": batch, "devices": jax.device_count(),
+                     "steps": args.steps, "compile_s": compile_s,
                      "seconds": run_s, "steps_per_s": batch * args.steps / run_s})
-        print(f"contacts batch {batch}: {rows[-1]['steps_per_s']:.0f} steps/s, "
-              f"compile {compile_s:.1f} s", file=sys.stderr, flush=True)
-    table = markdown_table(["batch", "devices", "character-steps/s", "compile s"],
-                           [[r["batch"], r["devices"], f"{r['steps_per_s']:,.0f}",
-                             f"{r['compile_s']:.1f}"] for r in rows])
+        if mujoco_setup:
+            import mujoco
+            mj_model, mj_state, mj_contacts = mujoco_setup
+            run_s, threads, sink = time_mujoco(mj_model, mj_state, batch, args.steps,
+                                               args.repeats)
+            rows.append({"engine": f"MuJoCo {mujoco.__version__}", "batch": batch,
+                         "threads": threads, "steps": args.steps, "seconds": run_s,
+                         "steps_per_s": batch * args.steps / run_s,
+                         "contacts_at_start": mj_contacts, "root_height_change_m": sink})
+        for r in rows[-2 if mujoco_setup else -1:]:
+            print(f"contacts batch {batch} {r['engine']}: {r['steps_per_s']:.0f} steps/s",
+                  file=sys.stderr, flush=True)
+    table = markdown_table(
+        ["engine", "batch", "devices / threads", "character-steps/s", "compile s"],
+        [[r["engine"], r["batch"], r.get("devices", r.get("threads")),
+          f"{r['steps_per_s']:,.0f}", f"{r['compile_s']:.1f}" if "compile_s" in r else "–"]
+         for r in rows])
     limits = ", torque limits (two-pass)" if args.torque_limits else ""
     return rows, (f"Humanoid on the ground, 600 Hz, maba, contacts and joint limits{limits}, "
                   f"float32\n\n{table}\n")
@@ -316,6 +397,8 @@ def parse_args(argv=None):
                    help="clip torques and re-solve with ABA where they bind (two-pass mode)")
     p.add_argument("--steps", type=int, default=60)
     p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--mujoco", action="store_true",
+                   help="also time MuJoCo stepping the same humanoid (mujoco_scene), for scale")
     p = sub.add_parser("filmstrip")
     p.add_argument("--out", type=Path, default=Path("docs/cartwheel_tracking.png"))
     return parser.parse_args(argv)
