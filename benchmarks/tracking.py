@@ -321,8 +321,9 @@ def time_mujoco(mj_model, state, batch, steps, repeats):
 
 def contacts(args):
     state, rollout = contact_scene(args.steps, args.torque_limits)
-    mujoco_setup = (mujoco_scene(characters.humanoid(), state.q, 1 / 600) if args.mujoco
-                    else None)
+    if args.mujoco:
+        import mujoco
+        mj_model, mj_state, mj_contacts = mujoco_scene(characters.humanoid(), state.q, 1 / 600)
     rows = []
     for batch in args.batch:
         states = batched_states(state, batch)
@@ -330,16 +331,14 @@ def contacts(args):
         rows.append({"engine": "takeoff maba", "batch": batch, "devices": jax.device_count(),
                      "steps": args.steps, "compile_s": compile_s,
                      "seconds": run_s, "steps_per_s": batch * args.steps / run_s})
-        if mujoco_setup:
-            import mujoco
-            mj_model, mj_state, mj_contacts = mujoco_setup
+        if args.mujoco:
             run_s, threads, sink = time_mujoco(mj_model, mj_state, batch, args.steps,
                                                args.repeats)
             rows.append({"engine": f"MuJoCo {mujoco.__version__}", "batch": batch,
                          "threads": threads, "steps": args.steps, "seconds": run_s,
                          "steps_per_s": batch * args.steps / run_s,
                          "contacts_at_start": mj_contacts, "root_height_change_m": sink})
-        for r in rows[-2 if mujoco_setup else -1:]:
+        for r in rows[-2 if args.mujoco else -1:]:
             print(f"contacts batch {batch} {r['engine']}: {r['steps_per_s']:.0f} steps/s",
                   file=sys.stderr, flush=True)
     table = markdown_table(
