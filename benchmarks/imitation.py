@@ -47,11 +47,11 @@ def _timed(fn, *args, repeats):
 
 
 def update_floor(update, args, steps, size=2048):
-    """The floating-point operations of one PPO update and this machine's float32 matmul rate (a
+    """The floating-point operations of one PPO update (`update` jitted, on `args`) and this machine's float32 matmul rate (a
     size × size product, median of 10): the update cannot run faster than their ratio, however
     fast the simulation. XLA's cost analysis of the compiled update counts the body of a loop
     once, so it gives one minibatch step (plus the advantages); times `steps` minibatch steps."""
-    flop = jax.jit(update).lower(*args).compile().cost_analysis()["flops"] * steps
+    flop = update.lower(*args).compile().cost_analysis()["flops"] * steps
     a = jnp.ones((size, size), jnp.float32)
     matmul_s, _ = _timed(jax.jit(jnp.matmul), a, a, repeats=10)
     return flop, 2 * size ** 3 / matmul_s
@@ -74,7 +74,7 @@ def speed(args):
                                             repeats=args.repeats)
     samples = config.run.samples_per_iteration
     update_flop, matmul_rate = update_floor(
-        trainer.ppo.update, (p, batch, state.key),
+        update, (p, batch, state.key),
         config.ppo.epochs * (samples // config.ppo.minibatch_size))
     result = {"machine": machine_info(), "envs": config.run.envs,
               "steps_per_iteration": config.run.steps_per_iteration,

@@ -28,7 +28,7 @@ from tracking import batched_states, contact_scene
 
 
 def contact_rollout(batch, steps):
-    state, rollout = contact_scene(steps)
+    _, state, rollout = contact_scene(steps)
     return jax.jit(rollout), (batched_states(state, batch),)
 
 

@@ -255,8 +255,8 @@ def speed(args):
 
 def contact_scene(steps, torque_limits=False):
     """The contact benchmark's setup: the humanoid (joints held by SPD, root free) dropped from
-    5 cm onto the ground, maba, contacts and joint limits, 600 Hz, float32. Returns its initial
-    state and `rollout(states)`, `steps` steps of a batch of such states."""
+    5 cm onto the ground, maba, contacts and joint limits, 600 Hz, float32. Returns the model, its
+    initial state and `rollout(states)`, `steps` steps of a batch of such states."""
     model = tracking.tracking_model(characters.humanoid(), root_gains=(0.0, 0.0))
     world = make_world(torque_limits=torque_limits)
     low, _ = characters.vertical_extent(model)
@@ -266,7 +266,7 @@ def contact_scene(steps, torque_limits=False):
     def rollout(states):
         return jax.vmap(lambda s: simulation.simulate(model, world, s, targets, 1 / 600)[0])(
             states)
-    return simulation.init_state(model, world, q0), rollout
+    return model, simulation.init_state(model, world, q0), rollout
 
 
 def mujoco_scene(model, q0, dt, settle_s=1 / 3):
@@ -320,10 +320,10 @@ def time_mujoco(mj_model, state, batch, steps, repeats):
 
 
 def contacts(args):
-    state, rollout = contact_scene(args.steps, args.torque_limits)
+    model, state, rollout = contact_scene(args.steps, args.torque_limits)
     if args.mujoco:
         import mujoco
-        mj_model, mj_state, mj_contacts = mujoco_scene(characters.humanoid(), state.q, 1 / 600)
+        mj_model, mj_state, mj_contacts = mujoco_scene(model, state.q, 1 / 600)
     rows = []
     for batch in args.batch:
         states = batched_states(state, batch)
