@@ -139,11 +139,12 @@ def _standardised_residuals(y, mask, prior_mean, scale):
     return jnp.where(mask[:, None], (y - prior_mean) / scale, 0.0).T                  # (m, n)
 
 
-def _fit(x, y, mask, prior_mean, key, restarts, steps, learning_rate):
+def _fit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate):
     count = jnp.maximum(jnp.sum(mask), 1)
     observed_mean = jnp.sum(jnp.where(mask[:, None], y, 0.0), axis=0) / count
     variance = jnp.sum(jnp.where(mask[:, None], (y - observed_mean) ** 2, 0.0), axis=0) / count
-    scale = jnp.where(variance > 0, jnp.sqrt(variance), 1.0)
+    scale = jnp.maximum(jnp.sqrt(variance), min_scale)
+    scale = jnp.where(scale > 0, scale, 1.0)
     residuals = _standardised_residuals(y, mask, prior_mean, scale)
     keys = jax.random.split(key, y.shape[1])
     raws = jax.vmap(_fit_one_output, in_axes=(None, 0, None, 0, None, None, None))(
@@ -166,11 +167,15 @@ def condition(posterior: Posterior, x, y, mask):
 _fit_jit = jax.jit(_fit, static_argnames=("restarts", "steps"))
 
 
-def fit(x, y, mask=None, prior_mean=None, key=None, restarts=8, steps=200, learning_rate=0.05):
+def fit(x, y, mask=None, prior_mean=None, key=None, restarts=8, steps=200, learning_rate=0.05,
+        min_scale=0.0):
     """Fit a GP to observations x (n, d) in the unit box and y (n, m) (or (n,)).
 
     `mask` (n,) marks the real rows of padded arrays (default: all). `prior_mean` (m,) is the constant
-    μ; by default the middle of the observed range of each output. Returns a `Posterior`.
+    μ; by default the middle of the observed range of each output. The outputs are standardised by
+    their observed standard deviation, but by no less than `min_scale` (m,): with few observations,
+    or all of one value, the observed spread says little about how far the function can vary, and
+    the fitted signal variance is a multiple of this unit. Returns a `Posterior`.
     """
     x = jnp.asarray(x)
     y = jnp.asarray(y, x.dtype)
@@ -186,8 +191,9 @@ def fit(x, y, mask=None, prior_mean=None, key=None, restarts=8, steps=200, learn
         high = jnp.max(jnp.where(mask[:, None], y, -jnp.inf), axis=0)
         prior_mean = 0.5 * (low + high)
     prior_mean = jnp.broadcast_to(jnp.asarray(prior_mean, x.dtype), (y.shape[1],))
+    min_scale = jnp.broadcast_to(jnp.asarray(min_scale, x.dtype), (y.shape[1],))
     key = jax.random.PRNGKey(0) if key is None else key
-    return _fit_jit(x, y, mask, prior_mean, key, restarts, steps, learning_rate)
+    return _fit_jit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate)
 
 
 @jax.jit

@@ -59,6 +59,11 @@ class SearchSettings:
     gp_steps: int = 200
     lbfgs_starts: int = 8
     direct_evaluations: int = 400
+    # The range the feature can take, per component (both empty: unknown). When given, the GP's
+    # prior mean is its middle and its standardising unit at least a quarter of its width (so
+    # the prior's ±2σ spans it); otherwise both come from the features seen so far.
+    feature_low: tuple[float, ...] = ()
+    feature_high: tuple[float, ...] = ()
 
     def __post_init__(self):
         if self.strategy not in STRATEGIES:
@@ -74,6 +79,22 @@ class SearchSettings:
         if self.strategy == "bds" and self.initial < self.batch:
             raise ValueError(f"initial ({self.initial}) must be at least batch ({self.batch}): "
                              "the first round has no observations to model")
+        if self.feature_low or self.feature_high:
+            try:
+                check_bounds(self.feature_low, self.feature_high)
+            except ValueError as error:
+                raise ValueError(f"feature_low/feature_high: {error}") from None
+
+    def feature_prior(self, feature_dim):
+        """The GP's prior mean and least standardising unit, each (feature_dim,), from the
+        feature's range; (None, 0.0) when the range is not given."""
+        if not self.feature_low:
+            return None, 0.0
+        if len(self.feature_low) != feature_dim:
+            raise ValueError(f"feature_low/feature_high give {len(self.feature_low)} components, "
+                             f"but the black box returns features of {feature_dim}")
+        low, high = np.asarray(self.feature_low), np.asarray(self.feature_high)
+        return 0.5 * (low + high), 0.25 * (high - low)
 
     def kind(self, index):
         """What pick `index` is: 'initial', 'explore' or 'diverse' (BDS) or 'random'."""
@@ -169,8 +190,9 @@ def plan_round(settings, first_index, count, x_unit, features, dim):
     mask = np.arange(capacity) < n
     xs, fs = _padded(x_unit, capacity), _padded(features, capacity)
     key = jax.random.fold_in(jax.random.PRNGKey(settings.seed), first_index)
-    posterior = gp.fit(xs, fs, mask, key=key, restarts=settings.gp_restarts,
-                       steps=settings.gp_steps)
+    prior_mean, min_scale = settings.feature_prior(fs.shape[1])
+    posterior = gp.fit(xs, fs, mask, prior_mean=prior_mean, key=key,
+                       restarts=settings.gp_restarts, steps=settings.gp_steps, min_scale=min_scale)
     picks = []
     for j, kind in enumerate(kinds):
         index = first_index + j
@@ -292,8 +314,10 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
     """
     lower, upper = check_bounds(lower, upper)
     dim = lower.size
-    header = {"lower": lower.tolist(), "upper": upper.tolist(),
-              **{k: v for k, v in dataclasses.asdict(settings).items() if k != "budget"}}
+    # As JSON gives it back (tuples become lists), so a resumed log compares equal.
+    header = json.loads(json.dumps(
+        {"lower": lower.tolist(), "upper": upper.tolist(),
+         **{k: v for k, v in dataclasses.asdict(settings).items() if k != "budget"}}))
     record_log = SearchLog(log, header)
 
     def history():
@@ -315,6 +339,7 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
             raise ValueError(f"evaluation {record['index']} at x = {record['x']} returned "
                              f"{len(record['feature'])} numbers; earlier evaluations returned "
                              f"{len(earlier['feature'])}")
+        settings.feature_prior(len(record["feature"]))    # a feature range of the wrong size
         record_log.add_evaluation(record)
         if progress is not None:
             progress(record)

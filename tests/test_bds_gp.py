@@ -101,6 +101,21 @@ def test_exploration_is_largest_away_from_data():
     assert std[1] > 3 * std[0]
 
 
+def test_a_known_feature_range_keeps_the_prior_wide_when_every_observation_agrees():
+    # Five points of one strategy: the observed spread is only the noise (0.01).
+    x = np.random.default_rng(2).uniform(0.0, 0.3, size=(5, 2))
+    y = 0.6 + 0.01 * np.random.default_rng(3).standard_normal(5)
+    far = jnp.array([[0.95, 0.95]])
+    narrow = gp.fit(x, y, restarts=2, steps=100)
+    wide = gp.fit(x, y, prior_mean=0.5, min_scale=0.25, restarts=2, steps=100)
+    assert float(narrow.scale[0]) < 0.02 and float(wide.scale[0]) == 0.25
+    mean, variance = gp.predict(wide, far)
+    # Far from the data the posterior returns towards the given prior mean …
+    assert abs(float(mean[0, 0]) - 0.5) < abs(float(mean[0, 0]) - 0.6)
+    # … and is unsure on the scale of the range, not of the noise.
+    assert np.sqrt(float(variance[0, 0])) > 0.05 > np.sqrt(float(gp.predict(narrow, far)[1][0, 0]))
+
+
 def test_distances():
     f, others = jnp.array([3.0]), jnp.array([[-3.0], [0.0]])
     np.testing.assert_allclose(acquisition.wrapped_angle(f, others),

@@ -171,6 +171,24 @@ def test_bad_settings_and_bad_black_box_outputs():
                SearchSettings(strategy="random", budget=3, seed=2))
 
 
+def test_feature_range_errors_and_a_resumed_search_with_one(tmp_path):
+    with pytest.raises(ValueError, match="feature_low/feature_high: .*dimension 0 has lower 1.0"):
+        SearchSettings(feature_low=(1.0,), feature_high=(0.0,))
+    with pytest.raises(ValueError, match="feature_low/feature_high: .*same length"):
+        SearchSettings(feature_low=(0.0,), feature_high=())
+    with pytest.raises(ValueError, match="give 2 components, but the black box returns features "
+                                         "of 1"):
+        search(lambda x: x[0], [0], [1], SearchSettings(strategy="random", budget=2,
+                                                        feature_low=(0, 0), feature_high=(1, 1)))
+    log = tmp_path / "search.jsonl"
+    settings = SearchSettings(budget=5, initial=4, explore=1, diverse=0, seed=3,
+                              feature_low=(0.0,), feature_high=(1.0,), **FAST)
+    first = search(lambda x: x[0] ** 2, [0, 0], [1, 1], settings, log=log)
+    calls = []
+    again = search(lambda x: calls.append(x) or x[0] ** 2, [0, 0], [1, 1], settings, log=log)
+    assert calls == [] and np.array_equal(first.x, again.x)
+
+
 def test_a_log_from_other_settings_is_refused(tmp_path):
     log = tmp_path / "search.jsonl"
     search(lambda x: x[0], [0], [1], SearchSettings(strategy="random", budget=2), log=log)
@@ -238,6 +256,7 @@ large = 1
     ("[box]\nlower = [0, 0, 0, 1]\nupper = [1, 1, 1, 1]\n", "dimension 3 has lower 1.0"),
     ("[search\n", "not valid TOML"),
     ("[landscape]\nfeatures = 'random'\n", "features must be one of spread, positional"),
+    ("[search]\nfeature_low = [0]\nfeature_high = [-1]\n", r"\[search\]: feature_low/"),
 ])
 def test_takeoff_search_config_errors_name_the_key(tmp_path, capsys, text, message):
     config = write_config(tmp_path, text)
