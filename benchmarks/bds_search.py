@@ -14,6 +14,10 @@ Reference: how many strategies spreading the points alone finds — the expected
 random points (from the strategies' volumes) and for maximin space-filling designs (best of 300
 random designs by smallest pairwise distance, 5 per landscape).
 
+--sweep compares Algorithm 1's splits, and reports for each kind of pick after the first four how
+often it found a new strategy, how often it lay on a face of the box, and the volume of the strategy
+it landed in (which picks do the finding, and where).
+
 Decision time: the wall time of planning one BDS pick (GP fit + acquisition + optimisation) with
 50 observations in a 4-D box, for an exploration and a diversity pick; median of repeats after a
 warm-up (compile time reported separately).
@@ -21,6 +25,7 @@ warm-up (compile time reported separately).
 Run:  python benchmarks/bds_search.py                       (50 landscapes)
       python benchmarks/bds_search.py --landscapes 5 --budget 10
       python benchmarks/bds_search.py --sweep --budget 10         (the splits of Algorithm 1)
+      python benchmarks/bds_search.py --feature-range             (BDS told the features' range)
 Writes JSON (default benchmarks/results/bds.json) and prints a markdown table.
 """
 
@@ -68,18 +73,49 @@ def distinct_counts(landscape, x, checkpoints):
     return {c: len(set(labels[:c].tolist())) for c in checkpoints}
 
 
+def describe_picks(landscape, volumes, result):
+    """Per pick: its kind, whether it found a strategy not seen before, whether it lies on a face
+    of the box, and the volume of the strategy it landed in."""
+    labels = landscape.label(result.x).tolist()
+    return [{"kind": kind, "new": label not in labels[:j],
+             "on_face": bool(np.min(np.minimum(x, 1.0 - x)) < 1e-3),
+             "volume": float(volumes[label])}
+            for j, (x, kind, label) in enumerate(zip(result.x, result.kinds, labels))]
+
+
+def pick_report(rows, methods, first_pick):
+    """Markdown table: for each method and kind of pick, over picks `first_pick` + 1 onwards, how
+    often a pick found a new strategy, how often it lay on a face of the box, and the median volume
+    of the strategy it landed in."""
+    lines = []
+    for method in methods:
+        picks = [p for r in rows if r["method"] == method for p in r["picks"][first_pick:]]
+        for kind in sorted({p["kind"] for p in picks}):
+            mine = [p for p in picks if p["kind"] == kind]
+            lines.append([method, kind, str(len(mine)),
+                          f"{np.mean([p['new'] for p in mine]):.2f}",
+                          f"{np.mean([p['on_face'] for p in mine]):.2f}",
+                          f"{np.median([p['volume'] for p in mine]):.3f}"])
+    return markdown_table(["setting", f"picks {first_pick + 1}–", "count", "new strategy",
+                           "on a face", "median volume landed in"], lines)
+
+
 def run_diversity(args, methods=METHODS):
+    # The landscapes' features lie in [0, 1] (one component); --feature-range tells the searches.
+    feature_range = dict(feature_low=(0.0,), feature_high=(1.0,)) if args.feature_range else {}
     rows = []
     for seed in range(args.landscapes):
         landscape = StrategyLandscape(LandscapeSettings(seed=seed, features=args.features))
+        volumes = landscape.volumes(50_000)
         for method, options in methods.items():
-            settings = SearchSettings(budget=args.budget, seed=seed, **options)
+            settings = SearchSettings(budget=args.budget, seed=seed, **options, **feature_range)
             start = time.perf_counter()
             result = search(landscape, np.zeros(4), np.ones(4), settings)
             counts = distinct_counts(landscape, result.x, args.checkpoints)
             rows.append({"landscape": seed, "method": method, "seconds":
                          time.perf_counter() - start, **{f"found@{c}": counts[c]
-                                                         for c in args.checkpoints}})
+                                                         for c in args.checkpoints},
+                         "picks": describe_picks(landscape, volumes, result)})
             print(f"landscape {seed:3d} {method:12s} " + "  ".join(
                 f"@{c}: {counts[c]}" for c in args.checkpoints), file=sys.stderr, flush=True)
     return rows
@@ -152,6 +188,8 @@ def sweep(args):
         ["setting", f"distinct @{first} (mean ± s.e.)", "÷ random"],
         [[name, f"{t[first][0]:.2f} ± {t[first][1]:.2f}", f"{t[first][0] / random_mean:.2f}"]
          for name, t in table.items()]))
+    print()
+    print(pick_report(rows, SWEEP, first_pick=4))
     write_record(args, table, rows, settings=SWEEP)
 
 
@@ -172,6 +210,10 @@ def main(argv=None):
     parser.add_argument("--features", choices=FEATURE_KINDS, default="spread",
                         help="how strategies' features are drawn (bds.landscapes); the regions "
                              "are the same either way")
+    parser.add_argument("--feature-range", action="store_true",
+                        help="give the searches the features' range, [0, 1] "
+                             "(SearchSettings.feature_low/feature_high): the GP's prior mean is "
+                             "its middle instead of the middle of the features seen")
     parser.add_argument("--json", type=Path, default=DEFAULT_JSON)
     parser.add_argument("--sweep", action="store_true",
                         help="compare Algorithm 1's splits (SWEEP) instead; JSON to "
