@@ -214,6 +214,11 @@ def plan_round(settings, first_index, count, x_unit, features, dim):
 # the log
 
 
+def _as_json(record):
+    """`record` as JSON gives it back (tuples become lists), so a resumed log compares equal."""
+    return json.loads(json.dumps(record))
+
+
 class SearchLog:
     """Append-only JSONL record of a search; see the module docstring."""
 
@@ -249,7 +254,9 @@ class SearchLog:
         if not records or records[0].get("event") != "start":
             raise ValueError(f"{self.path}: not a search log (the first line must be the "
                              "search's 'start' record)")
-        stored = {key: value for key, value in records[0].items() if key != "event"}
+        # A setting added after the log was written is taken to have had its default value.
+        stored = {**_as_json(dataclasses.asdict(SearchSettings())),
+                  **{key: value for key, value in records[0].items() if key != "event"}}
         for key, value in self.header.items():
             if stored.get(key) != value:
                 raise ValueError(f"{self.path}: this log belongs to a different search: its "
@@ -314,10 +321,8 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
     """
     lower, upper = check_bounds(lower, upper)
     dim = lower.size
-    # As JSON gives it back (tuples become lists), so a resumed log compares equal.
-    header = json.loads(json.dumps(
-        {"lower": lower.tolist(), "upper": upper.tolist(),
-         **{k: v for k, v in dataclasses.asdict(settings).items() if k != "budget"}}))
+    header = _as_json({"lower": lower.tolist(), "upper": upper.tolist(),
+                       **{k: v for k, v in dataclasses.asdict(settings).items() if k != "budget"}})
     record_log = SearchLog(log, header)
 
     def history():

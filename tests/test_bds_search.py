@@ -187,6 +187,16 @@ def test_feature_range_errors_and_a_resumed_search_with_one(tmp_path):
     calls = []
     again = search(lambda x: calls.append(x) or x[0] ** 2, [0, 0], [1, 1], settings, log=log)
     assert calls == [] and np.array_equal(first.x, again.x)
+    # A log written before the feature range existed resumes under the default settings.
+    older = tmp_path / "older.jsonl"
+    settings = SearchSettings(strategy="random", budget=2)
+    search(lambda x: x[0], [0], [1], settings, log=older)
+    lines = older.read_text().splitlines()
+    header = json.loads(lines[0])
+    del header["feature_low"], header["feature_high"]
+    older.write_text("\n".join([json.dumps(header), *lines[1:]]) + "\n")
+    search(lambda x: calls.append(x) or x[0], [0], [1], settings, log=older)
+    assert calls == []
 
 
 def test_a_log_from_other_settings_is_refused(tmp_path):
