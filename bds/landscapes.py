@@ -4,8 +4,8 @@ report its strategy feature", for testing and benchmarking searches.
 The box [0, 1]^d is partitioned into regions of very unequal size by an additively weighted Voronoi
 (power) diagram: x belongs to the strategy k that minimises ‖x − c_k‖² − w_k. A few strategies get
 large weights and own most of the box (the flat, common strategies); the rest are small pockets, as
-rare strategies are in the thesis's high-jump search. Each strategy has its own feature value, and an
-evaluation returns that value plus Gaussian noise. The features are either drawn well apart from
+rare strategies are in the thesis's high-jump search. Each strategy has its own feature value,
+and an evaluation returns that value plus Gaussian noise. The features are either drawn well apart from
 each other with no relation to where the strategies lie ("spread", the default), or follow position
 ("positional": a projection of each region's centre, so neighbouring strategies have nearby
 features); for a seed, both kinds have the same regions. The strategy label of a point is known,

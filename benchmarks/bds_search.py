@@ -68,11 +68,6 @@ METHODS = {
 }
 
 
-def distinct_counts(landscape, x, checkpoints):
-    labels = landscape.label(np.asarray(x))
-    return {c: len(set(labels[:c].tolist())) for c in checkpoints}
-
-
 def describe_picks(landscape, volumes, result):
     """Per pick: its kind, whether it found a strategy not seen before, whether it lies on a face
     of the box, and the volume of the strategy it landed in."""
@@ -111,11 +106,11 @@ def run_diversity(args, methods=METHODS):
             settings = SearchSettings(budget=args.budget, seed=seed, **options, **feature_range)
             start = time.perf_counter()
             result = search(landscape, np.zeros(4), np.ones(4), settings)
-            counts = distinct_counts(landscape, result.x, args.checkpoints)
-            rows.append({"landscape": seed, "method": method, "seconds":
-                         time.perf_counter() - start, **{f"found@{c}": counts[c]
-                                                         for c in args.checkpoints},
-                         "picks": describe_picks(landscape, volumes, result)})
+            seconds = time.perf_counter() - start
+            picks = describe_picks(landscape, volumes, result)
+            counts = {c: sum(p["new"] for p in picks[:c]) for c in args.checkpoints}
+            rows.append({"landscape": seed, "method": method, "seconds": seconds,
+                         **{f"found@{c}": counts[c] for c in args.checkpoints}, "picks": picks})
             print(f"landscape {seed:3d} {method:12s} " + "  ".join(
                 f"@{c}: {counts[c]}" for c in args.checkpoints), file=sys.stderr, flush=True)
     return rows
