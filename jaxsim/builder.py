@@ -10,6 +10,7 @@ from typing import Sequence
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsim import rotations
 from jaxsim.model import (DOF_SIZE, JOINT_TYPES, ROOT_JOINT_TYPES, SHAPE_TYPES, Model, ModelError,
                           Topology)
 
@@ -20,7 +21,10 @@ class LinkSpec:
 
     Sizes of shapes are half-sizes (see `Model`). If `inertia` is None it is computed from the
     shape with uniform density; `com` defaults to the shape's centre. Gains and limits are scalars
-    (the same for every DoF of the joint) or one value per DoF.
+    (the same for every DoF of the joint) or one value per DoF: gains finite and non-negative,
+    torque limits positive, and q_lower ≤ q_upper. The defaults, torque_limit = np.inf and
+    q_lower, q_upper = −np.inf, np.inf, mean no limit. A free root takes no limits: its
+    coordinates are its pose in the world, and the hand-of-God force on it is not capped.
     """
 
     name: str
@@ -64,12 +68,42 @@ def shape_inertia(shape: str, half_size, mass: float) -> np.ndarray:
     raise ModelError(f"cannot compute the inertia of shape {shape!r}")
 
 
+# What each per-DoF field accepts: (test, the requirement in words).
+_PER_DOF_RULES = {
+    "kp": (lambda v: np.isfinite(v) & (v >= 0), "finite and non-negative"),
+    "kd": (lambda v: np.isfinite(v) & (v >= 0), "finite and non-negative"),
+    "torque_limit": (lambda v: v > 0, "positive (inf for no limit)"),
+    "q_lower": (lambda v: v < np.inf, "a number or -inf (no limit)"),
+    "q_upper": (lambda v: v > -np.inf, "a number or inf (no limit)"),
+}
+
+
 def _per_dof(value, n_dof, what, where):
     arr = np.broadcast_to(np.asarray(value, float), (n_dof,)) if np.ndim(value) == 0 else \
         np.asarray(value, float)
     if arr.shape != (n_dof,):
         raise ModelError(f"{where}: field {what!r} needs 1 or {n_dof} values, got {arr.shape[0]}")
+    accepts, requirement = _PER_DOF_RULES[what]
+    bad = np.flatnonzero(~accepts(arr))
+    if len(bad):
+        raise ModelError(f"{where}: field {what!r} must be {requirement}, got {arr[bad[0]]} "
+                         f"(DoF {bad[0]} of the joint)")
     return arr
+
+
+def _check_limits(values, joint, where):
+    """Limits that contradict each other, or any limit on a free root."""
+    lower, upper = values["q_lower"], values["q_upper"]
+    crossed = np.flatnonzero(lower > upper)
+    if len(crossed):
+        k = crossed[0]
+        raise ModelError(f"{where}: field 'q_lower' is above field 'q_upper' at DoF {k} of the "
+                         f"joint ({lower[k]} > {upper[k]})")
+    if joint == "free":
+        for key in ("q_lower", "q_upper", "torque_limit"):
+            if np.any(np.isfinite(values[key])):
+                raise ModelError(f"{where}: field {key!r} must be left unlimited on a free root "
+                                 f"(its coordinates are its world pose), got {values[key]}")
 
 
 def _vector(value, what, where):
@@ -82,10 +116,10 @@ def _vector(value, what, where):
 def _rotation(value, what, where):
     if value is None:
         return np.eye(3)
-    arr = np.asarray(value, float)
-    if arr.shape != (3, 3) or not np.allclose(arr @ arr.T, np.eye(3), atol=1e-6):
-        raise ModelError(f"{where}: field {what!r} must be a 3×3 rotation matrix")
-    return arr
+    if not rotations.is_rotation_matrix(value):
+        raise ModelError(f"{where}: field {what!r} must be a 3×3 rotation matrix (orthogonal, "
+                         f"determinant +1), got {np.asarray(value).tolist()}")
+    return np.asarray(value, float)
 
 
 def build_model(links: Sequence[LinkSpec], source: str = "model", dtype=jnp.float32) -> Model:
@@ -157,8 +191,10 @@ def build_model(links: Sequence[LinkSpec], source: str = "model", dtype=jnp.floa
         arrays["shape_rot"].append(shape_rot)
         arrays["shape_size"].append(shape_size)
         n_dof = DOF_SIZE[link.joint]
-        for key in per_dof:
-            per_dof[key].append(_per_dof(getattr(link, key), n_dof, key, where))
+        values = {key: _per_dof(getattr(link, key), n_dof, key, where) for key in per_dof}
+        _check_limits(values, link.joint, where)
+        for key, value in values.items():
+            per_dof[key].append(value)
 
     topology = Topology(tuple(l.name for l in links), tuple(parents), tuple(joint_types),
                         tuple(shape_types))

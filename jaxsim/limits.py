@@ -19,8 +19,9 @@ from jaxsim.world import World
 
 
 def joint_coordinates(model: Model, q):
-    """Per-DoF joint coordinates (nv): revolute angles and spherical rotation vectors (the
-    root's entries are its pose relative to the origin, which no limit constrains)."""
+    """Per-DoF joint coordinates (nv): revolute angles and spherical rotation vectors. A free
+    root's entries are its pose relative to the world origin; `build_model` refuses limits
+    there, so no limit spring acts on them."""
     return pose_error(model, q, rest_pose(model).astype(q.dtype))
 
 

@@ -257,6 +257,22 @@ jax.tree_util.register_dataclass(State, data_fields=["q", "qd", "contact_stretch
                                  meta_fields=[])
 
 
+def check_layout(model: Model, name: str, value, layout: str, leading: str = ""):
+    """Raise ValueError unless `value` is one pose (layout "nq") or one velocity ("nv") of
+    `model`, or with `leading` given (such as "T") a stack of them along one leading axis.
+
+    Shapes are static, so this works on traced arrays too. The message names the argument, the
+    expected length and the shape received: a DeepMimic frame of [dt, pose] passed as a pose, for
+    one, has one number too many and would otherwise shift every joint by one slot.
+    """
+    size = {"nq": model.nq, "nv": model.nv}[layout]
+    shape = tuple(np.shape(value))
+    expected = f"({leading}, {size})" if leading else f"({size},)"
+    if len(shape) != (2 if leading else 1) or shape[-1] != size:
+        raise ValueError(f"{name}: expected shape {expected} with {layout} = {size} for this "
+                         f"model, got shape {shape}")
+
+
 def rest_pose(model: Model, root_height: float = 0.0) -> jax.Array:
     """q with every joint at zero (identity quaternions) and the root at the given height (Y)."""
     topo = model.topology

@@ -6,10 +6,12 @@ matrix (Zhou et al., 2019), as used for the P-VAE pose features (thesis §3.4.2)
 
 Every function works on a single rotation and broadcasts over leading axes, and every one is
 differentiable with finite gradients at the identity: the divisions by the rotation angle that
-appear in the textbook formulas are replaced by their Taylor series below a small angle.
+appear in the textbook formulas are replaced by their Taylor series below a small angle. The one
+exception is `is_rotation_matrix`, a NumPy check for validating user input.
 """
 
 import jax.numpy as jnp
+import numpy as np
 
 # Below this squared angle the exp/log maps use Taylor series instead of sin(θ)/θ-style ratios.
 _SMALL_ANGLE_SQ = 1e-8
@@ -135,6 +137,12 @@ def quat_to_rotvec(q):
     return xyz * ratio[..., None]
 
 
+def relative_rotvec(q0, q1):
+    """log(q₀⁻¹ ⊗ q₁): the rotation vector, in q₀'s frame, of the rotation that takes q₀ to q₁
+    (shortest arc)."""
+    return quat_to_rotvec(quat_multiply(quat_conjugate(q0), q1))
+
+
 def rotvec_to_matrix(v):
     """Rodrigues' formula, R = I + sinc(θ) ṽ + (1 − cos θ)/θ² ṽ²."""
     theta_sq, theta, small = _angle_and_sinc_terms(v)
@@ -161,6 +169,15 @@ def axis_angle_to_matrix(axis, angle):
     eye = jnp.broadcast_to(jnp.eye(3, dtype=k.dtype), k.shape)
     s, c = jnp.sin(angle)[..., None, None], jnp.cos(angle)[..., None, None]
     return eye + s * k + (1.0 - c) * (k @ k)
+
+
+def is_rotation_matrix(m, atol: float = 1e-6) -> bool:
+    """Whether `m` is a 3×3 proper rotation: finite, orthogonal (within atol) and with
+    determinant +1, so not a reflection."""
+    m = np.asarray(m, float)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        return False
+    return bool(np.allclose(m @ m.T, np.eye(3), atol=atol) and np.linalg.det(m) > 0)
 
 
 def euler_xyz_to_matrix(angles):

@@ -15,7 +15,7 @@ import numpy as np
 
 from jaxsim import contact, kinematics, limits
 from jaxsim.dynamics import aba, solve_spd
-from jaxsim.model import Model, State
+from jaxsim.model import Model, State, check_layout
 from jaxsim.world import World
 
 
@@ -26,6 +26,9 @@ class SimulationError(ValueError):
 def init_state(model: Model, world: World, q, qd=None) -> State:
     """A state ready to step in `world`: friction springs unstretched, no touches recorded yet.
     `qd` defaults to rest."""
+    check_layout(model, "q", q, "nq")
+    if qd is not None:
+        check_layout(model, "qd", qd, "nv")
     q = jnp.asarray(q, model.mass.dtype)
     qd = jnp.zeros(model.nv, q.dtype) if qd is None else jnp.asarray(qd, q.dtype)
     n_contacts = len(contact.contact_layout(model, world))
@@ -65,8 +68,10 @@ def step(model: Model, world: World, state: State, target, dt, method: str = "ma
 
     The state must carry contact memory when the world has contacts (`init_state`). Called
     outside `jit` the input is checked and a non-finite state raises `SimulationError`; inside
-    `jit`, check `is_finite` on the result.
+    `jit`, check `is_finite` on the result. Arrays of the wrong length raise ValueError.
     """
+    check_layout(model, "state.q", state.q, "nq")
+    check_layout(model, "state.qd", state.qd, "nv")
     if not isinstance(state.q, jax.core.Tracer):
         check_state(model, state)
     q, qd = state.q, state.qd
@@ -99,6 +104,9 @@ def simulate(model: Model, world: World, state: State, targets, dt, method: str 
     Returns (final state, the states after each control step), the latter with a leading time
     axis. A `lax.scan` over control steps around a `lax.scan` over substeps.
     """
+    check_layout(model, "targets", targets, "nq", leading="T")
+    if target_velocities is not None:
+        check_layout(model, "target_velocities", target_velocities, "nv", leading="T")
     def control_step(s, control):
         target, target_velocity = control
         s, _ = jax.lax.scan(

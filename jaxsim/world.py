@@ -96,12 +96,12 @@ jax.tree_util.register_dataclass(
 
 def _box_rotation(box: Box) -> np.ndarray:
     rot = np.asarray(box.rotation, float)
-    if rot.shape == (3,):
+    if rot.shape == (3,) and np.all(np.isfinite(rot)):
         return np.asarray(rotations.euler_xyz_to_matrix(rot), float)
-    if rot.shape == (3, 3) and np.allclose(rot @ rot.T, np.eye(3), atol=1e-6):
+    if rotations.is_rotation_matrix(rot):
         return rot
     raise ValueError(f"box {box.name!r}: rotation must be 3 Euler angles or a 3×3 rotation "
-                     f"matrix, got {box.rotation!r}")
+                     f"matrix (orthogonal, determinant +1), got {rot.tolist()}")
 
 
 def make_world(gravity=DEFAULT_GRAVITY, ground: bool = True, ground_normal=(0.0, 1.0, 0.0),

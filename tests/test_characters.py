@@ -1,5 +1,6 @@
 """Characters: the built-in humanoid, quadruped and snakes, DeepMimic's files, shape inertias."""
 
+import json
 import math
 
 import jax.numpy as jnp
@@ -7,10 +8,11 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from jaxsim import characters, kinematics
+from jaxsim import characters, kinematics, limits
 from jaxsim.builder import LinkSpec, build_model
 from jaxsim.characters.humanoid import SEGMENTS
 from jaxsim.model import rest_pose
+from jaxsim.world import make_world
 
 HUMANOID_JOINTS = {
     "root": "free", "chest": "spherical", "neck": "spherical",
@@ -59,6 +61,25 @@ def test_humanoid_structure():
     dofs = np.diff(topo.dof_offsets)
     assert dofs.tolist() == [{"free": 6, "spherical": 3, "revolute": 1, "fixed": 0}[t]
                              for t in topo.joint_types]
+
+
+def test_reference_humanoid_height_from_deepmimic_body_dimensions(data_dir):
+    """The reference humanoid stands as tall as DeepMimic's character file makes it: from the
+    sole of the foot box to the top of the head sphere, summing the file's vertical offsets."""
+    data = json.loads(deepmimic_file(data_dir, "humanoid3d.txt").read_text())
+    joints = {j["Name"]: j for j in data["Skeleton"]["Joints"]}
+    bodies = {b["Name"]: b for b in data["BodyDefs"]}
+    for name in ("root", "chest", "neck", "right_hip", "right_knee", "right_ankle"):
+        assert [joints[name][f"AttachTheta{a}"] for a in "XYZ"] == [0, 0, 0]
+        assert [bodies[name][f"AttachTheta{a}"] for a in "XYZ"] == [0, 0, 0]
+    head_top = (joints["chest"]["AttachY"] + joints["neck"]["AttachY"]
+                + bodies["neck"]["AttachY"] + bodies["neck"]["Param0"] / 2)
+    sole = (joints["right_hip"]["AttachY"] + joints["right_knee"]["AttachY"]
+            + joints["right_ankle"]["AttachY"] + bodies["right_ankle"]["AttachY"]
+            - bodies["right_ankle"]["Param1"] / 2)
+    assert head_top - sole == pytest.approx(1.618961, abs=1e-6)
+    assert standing_height(characters.humanoid(dtype=jnp.float64)) == pytest.approx(
+        head_top - sole, abs=1e-9)
 
 
 def test_humanoid_resized_to_height_and_mass():
@@ -119,9 +140,8 @@ def test_humanoid_resized_with_longer_thighs_keeps_the_requested_height():
 def test_every_segment_scale_changes_the_body(segment):
     """Every key that `segment_scales` accepts changes the character's geometry.
 
-    Library bug (reported): {"hand": s} is accepted and has no effect at all — the wrist link is
-    a sphere at its joint with no children, and only capsule lengths, shape positions and child
-    joint positions are scaled.
+    A regression test: {"hand": s} once had no effect, because the wrist is a childless sphere
+    at its joint and only capsule lengths, shape positions and child joints were scaled.
     """
     reference = characters.humanoid(dtype=jnp.float64)
     model = characters.humanoid(segment_scales={segment: 1.5}, dtype=jnp.float64)
@@ -164,6 +184,19 @@ def test_snake_dof(n_links, nv):
     # A chain: the deepest path holds every DoF.
     assert model.topology.max_path_dofs == nv
     assert model.topology.parents == tuple(range(-1, n_links))
+
+
+def test_snake_far_from_the_origin_feels_no_joint_limit_on_its_root():
+    """The segments' limits stay on the segments: the free head's coordinates are its world
+    pose, so a snake 5 m from the origin must not be pulled back towards it."""
+    model = characters.snake(3, dtype=jnp.float64)
+    q = rest_pose(model).at[0].set(5.0)
+    tau = limits.joint_limit_torques(model, make_world(dtype=jnp.float64), q, jnp.zeros(model.nv))
+    np.testing.assert_array_equal(tau, np.zeros(model.nv))
+    assert np.all(np.isinf(np.asarray(model.q_lower[:6])))
+    assert np.all(np.isinf(np.asarray(model.torque_limit[:6])))
+    np.testing.assert_array_equal(model.q_upper[6:], np.ones(model.nv - 6))
+    np.testing.assert_array_equal(model.torque_limit[6:], np.full(model.nv - 6, 200.0))
 
 
 def test_snake_needs_a_link():
@@ -219,6 +252,15 @@ def test_deepmimic_dog(data_dir):
     assert model.topology.floating
     assert np.all(np.asarray(model.mass) > 0)
     assert np.all(np.asarray(model.kp[6:]) > 0)
+    # The file gives the spherical joints LimLow 1 > LimHigh 0, DeepMimic's mark of a joint
+    # without limits; the revolute legs keep theirs.
+    topo = model.topology
+    shoulder = topo.dof_offsets[topo.link_index("left_shoulder")] + np.arange(3)
+    np.testing.assert_array_equal(model.q_lower[shoulder], np.full(3, -np.inf))
+    np.testing.assert_array_equal(model.q_upper[shoulder], np.full(3, np.inf))
+    knee = topo.dof_offsets[topo.link_index("left_leg")]
+    assert float(model.q_lower[knee]) == pytest.approx(-3.14)
+    assert float(model.q_upper[knee]) == 0.0
 
 
 # ----------------------------------------------------------------------------------------------

@@ -41,11 +41,8 @@ def test_spd_solvers_agree(models, name, root_gains):
         assert relative_error(qdd, qdd_dense) < 1e-9, method
         assert relative_error(tau, tau_dense) < 1e-9, method
     qdd, tau = results["maba"]
-    # The returned torques are SPD's: τ = −Kp(q ⊖ q̄ + Δt q̇) − Kd(q̇ + Δt q̈) (eq. 2.6) ...
-    expected_tau = (-model.kp * (dynamics.pose_error(model, q, target) + DT * qd)
-                    - model.kd * (qd + DT * qdd))
-    assert relative_error(tau, expected_tau) < 1e-12
-    # ... and they produce q̈ through the equations of motion (inverse dynamics).
+    # The returned torques are the ones that produce q̈ through the equations of motion
+    # (inverse dynamics, computed without the SPD solve).
     assert relative_error(jax.jit(dynamics.rnea)(model, q, qd, qdd, f_ext), tau) < 1e-9
 
 

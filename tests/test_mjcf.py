@@ -1,4 +1,5 @@
-"""MJCF export: structure, masses and inertias; optionally, MuJoCo's mass matrix."""
+"""MJCF export: structure, masses and inertias, and MuJoCo's mass matrix and link positions for
+the exported models (MuJoCo is a test dependency: the `test` extra in pyproject.toml)."""
 
 import xml.etree.ElementTree as ET
 

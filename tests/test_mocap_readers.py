@@ -329,6 +329,8 @@ def test_cmu_walk_survives_a_bvh_round_trip(data_dir, tmp_path):
     (("lower 8 9", "upper 8"), 12, "bone 'upper' appears twice in frame 2"),
     (("lower 8 9\n", ""), 9, "frame 2 has no values for bone 'lower'"),
     (("\n2\n", "\n3\n"), 9, "frame 3 follows frame 1"),
+    (("lower 8 9", "lower 8 nan"), 12, "not a finite number"),
+    (("hand 10", "hand -inf"), 13, "not a finite number"),
 ])
 def test_malformed_amc_names_file_and_line(tmp_path, edit, line, reason):
     skeleton = motion.load_asf(write_crlf(tmp_path / "small.asf", SMALL_ASF))
@@ -346,6 +348,12 @@ def test_malformed_amc_names_file_and_line(tmp_path, edit, line, reason):
     (("CHANNELS 3 Xrotation", "CHANNELS 3 Xposition"), 18, "'Xposition'"),
     (("Frames: 2\nFrame Time: 0.04\n0 0 0 0 0 0 0 0 0 0 0 0\n1 1 1 90 0 0 0 90 90 0 0 90\n",
       "Frames: 0\nFrame Time: 0.04\n"), 26, "frame count must be a whole number ≥ 1"),
+    (("Frames: 2", "Frames: nan"), 26, "not a finite number"),
+    (("Frames: 2", "Frames: inf"), 26, "not a finite number"),
+    (("Frame Time: 0.04", "Frame Time: nan"), 27, "not a finite number"),
+    (("Frame Time: 0.04", "Frame Time: inf"), 27, "not a finite number"),
+    (("1 1 1 90 0 0", "1 1 NaN 90 0 0"), 29, "not a finite number"),
+    (("OFFSET 1 2 3", "OFFSET 1 inf 3"), 4, "not a finite number"),
 ])
 def test_malformed_bvh_names_file_and_line(tmp_path, edit, line, reason):
     path = write_crlf(tmp_path / "bad.bvh", SMALL_BVH.replace(*edit))
@@ -361,11 +369,21 @@ def test_an_amc_without_frames_is_an_error(tmp_path):
         motion.load_amc(path, skeleton)
 
 
+@pytest.mark.parametrize("frame_rate", [0.0, -120.0, float("nan"), float("inf")])
+def test_amc_frame_rate_must_be_positive(tmp_path, frame_rate):
+    skeleton = motion.load_asf(write_crlf(tmp_path / "small.asf", SMALL_ASF))
+    path = write_crlf(tmp_path / "ok.amc", small_amc([((0,) * 6, 0, (0, 0), 0)] * 2))
+    with pytest.raises(ValueError, match=f"{path}: frame_rate must be .*got {frame_rate}"):
+        motion.load_amc(path, skeleton, frame_rate=frame_rate)
+
+
 @pytest.mark.parametrize("edit, line, reason", [
     ((":bonedata", ":bones"), 56, "no :bonedata section"),
     (("lower hand", "lower hand finger"), 55, "unknown bone 'finger'"),
     (("dof rx ry", "dof rx tx"), 31, "'tx' is not supported"),
     (("axis 0 0 90  XYZ", "axis 0 0 90 XXY"), 21, "axis order"),
+    (("length 0.5", "length nan"), 6, "not a finite number"),
+    (("length 10", "length inf"), 20, "not a finite number"),
 ])
 def test_malformed_asf_names_file_and_line(tmp_path, edit, line, reason):
     path = write_crlf(tmp_path / "bad.asf", SMALL_ASF.replace(*edit))

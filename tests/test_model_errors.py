@@ -163,12 +163,12 @@ def test_controller_missing_gain(tmp_path, humanoid_json, controller_json):
     assert_names(load_error(path, ctrl_path), str(ctrl_path), "chest", "'Kd'")
 
 
-# The cases below are library bugs found while writing these tests (reported); each test states
-# the behaviour DESIGN.md asks for.
+# Regression tests for errors that once escaped without naming the file's joint and key.
 
 
 def test_joints_that_are_not_a_list(tmp_path, humanoid_json):
-    """Bug: `"Joints": 5` escapes as a bare TypeError ('int' object is not iterable)."""
+    """`"Joints": 5` gives a ModelError naming the field (it once escaped as a bare TypeError,
+    'int' object is not iterable)."""
     data = copy.deepcopy(humanoid_json)
     data["Skeleton"]["Joints"] = 5
     path = write(tmp_path, data)
@@ -176,8 +176,8 @@ def test_joints_that_are_not_a_list(tmp_path, humanoid_json):
 
 
 def test_duplicate_joint_id(tmp_path, humanoid_json):
-    """Bug: a duplicated joint ID is accepted silently (the second joint takes the first one's
-    body: here left_wrist gets right_wrist's BodyDefs entry)."""
+    """A duplicated joint ID is refused. It was once accepted silently, and the second joint
+    took the first one's body (here left_wrist got right_wrist's BodyDefs entry)."""
     data = copy.deepcopy(humanoid_json)
     joint(data, "left_wrist")["ID"] = joint(data, "right_wrist")["ID"]
     path = write(tmp_path, data)
@@ -191,13 +191,51 @@ def test_duplicate_joint_id(tmp_path, humanoid_json):
     ("joint", "neck", "AttachY", float("inf")),       # JSON's Infinity
 ])
 def test_errors_name_the_files_field(tmp_path, humanoid_json, where, name, key, value):
-    """Bug: these are caught by the builder, whose message names its own field ('joint',
-    'shape_size', 'joint_pos') and value ('free'), not the file's key ('Type', 'Param0',
-    'AttachY') and value ('none'), and says 'link' for the file's joint/body."""
+    """The loader catches these itself, so the message names the file's key ('Type', 'Param0',
+    'AttachY') and joint/body rather than the builder's field ('joint', 'shape_size',
+    'joint_pos') and link."""
     data = copy.deepcopy(humanoid_json)
     (joint if where == "joint" else body)(data, name)[key] = value
     path = write(tmp_path, data)
     assert_names(load_error(path), str(path), f"'{name}'", f"'{key}'")
+
+
+@pytest.mark.parametrize("name, key, value", [
+    ("right_knee", "TorqueLim", -150),
+    ("right_knee", "TorqueLim", float("nan")),
+    ("left_elbow", "LimLow0", float("nan")),
+    ("neck", "LimHigh2", float("nan")),
+])
+def test_bad_joint_limits_name_the_files_key(tmp_path, humanoid_json, name, key, value):
+    data = copy.deepcopy(humanoid_json)
+    joint(data, name)[key] = value
+    path = write(tmp_path, data)
+    assert_names(load_error(path), str(path), f"'{name}'", f"'{key}'")
+
+
+@pytest.mark.parametrize("key, value", [("Kp", -1000), ("Kd", float("nan"))])
+def test_bad_controller_gain_names_the_key(tmp_path, humanoid_json, controller_json, key,
+                                           value):
+    ctrl = copy.deepcopy(controller_json)
+    next(c for c in ctrl["PDControllers"] if c["Name"] == "chest")[key] = value
+    path = write(tmp_path, humanoid_json)
+    ctrl_path = write(tmp_path, ctrl, "controller.txt")
+    assert_names(load_error(path, ctrl_path), str(ctrl_path), "chest", f"'{key}'")
+
+
+def test_deepmimic_conventions_for_no_limit(tmp_path, humanoid_json):
+    """TorqueLim 0 means no torque limit, and LimLow > LimHigh no limit on that DoF (what
+    DeepMimic writes for joints without limits)."""
+    data = copy.deepcopy(humanoid_json)
+    joint(data, "right_knee")["TorqueLim"] = 0
+    joint(data, "neck")["LimLow1"], joint(data, "neck")["LimHigh1"] = 1, 0
+    model = characters.load_deepmimic(write(tmp_path, data))
+    topo = model.topology
+    knee = topo.dof_offsets[topo.link_index("right_knee")]
+    neck = topo.dof_offsets[topo.link_index("neck")] + np.arange(3)
+    assert float(model.torque_limit[knee]) == np.inf
+    np.testing.assert_array_equal(model.q_lower[neck], [-1, -np.inf, -1])
+    np.testing.assert_array_equal(model.q_upper[neck], [1, np.inf, 1])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -276,6 +314,40 @@ def test_builder_bad_inertia():
     message = build_error([link("base", None, "free", shape="none",
                                 inertia=np.diag([1.0, -1.0, 1.0]))])
     assert_names(message, "my_robot.py", "'base'", "'inertia'")
+
+
+@pytest.mark.parametrize("field, value", [
+    ("kp", -1.0), ("kp", float("nan")), ("kp", float("inf")), ("kd", [5.0, -0.1, 5.0]),
+    ("kd", float("nan")), ("torque_limit", 0.0), ("torque_limit", -10.0),
+    ("torque_limit", float("nan")), ("q_lower", float("nan")), ("q_upper", float("nan")),
+    ("q_lower", float("inf")), ("q_upper", -float("inf")),
+])
+def test_builder_bad_gains_and_limits(field, value):
+    message = build_error([link("base", None, "free"), link("arm", "base", **{field: value})])
+    assert_names(message, "my_robot.py", "'arm'", f"'{field}'")
+
+
+def test_builder_lower_limit_above_upper():
+    message = build_error([link("base", None, "free"),
+                           link("arm", "base", q_lower=[-1.0, 0.5, -1.0], q_upper=0.2)])
+    assert_names(message, "my_robot.py", "'arm'", "'q_lower'", "'q_upper'", "0.5", "0.2")
+
+
+@pytest.mark.parametrize("field, value", [("q_lower", -1.0), ("q_upper", 1.0),
+                                          ("torque_limit", 200.0)])
+def test_builder_free_root_with_limits(field, value):
+    """A free root's coordinates are its world pose: a limit would tie it to the origin."""
+    message = build_error([link("base", None, "free", **{field: value}), link("arm", "base")])
+    assert_names(message, "my_robot.py", "'base'", f"'{field}'", "free")
+
+
+REFLECTION = np.diag([1.0, 1.0, -1.0])
+
+
+@pytest.mark.parametrize("field", ["joint_rot", "shape_rot"])
+def test_builder_rejects_reflections(field):
+    message = build_error([link("base", None, "free"), link("arm", "base", **{field: REFLECTION})])
+    assert_names(message, "my_robot.py", "'arm'", f"'{field}'")
 
 
 def test_link_index_of_unknown_name_lists_the_known_names():

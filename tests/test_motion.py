@@ -2,6 +2,7 @@
 
 import json
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -77,6 +78,19 @@ def test_looping_carries_the_root_forward_and_a_one_shot_clip_holds_its_end(data
     assert not kick.loop
     np.testing.assert_allclose(motion.sample_pose(kick, float(kick.duration) + 3.0),
                                kick.poses[-1], atol=1e-12)
+    # Held still outside the clip, it does not move: no velocity after the end or before the
+    # start, while at the ends themselves the velocity is the last (first) interval's rate.
+    end = float(kick.duration)
+    for t in (end + 3.0, end + 1e-9, -1e-9, -0.5):
+        np.testing.assert_array_equal(motion.sample_velocity(kick, t), np.zeros(humanoid.nv))
+    for t, inside in ((end, end - 1e-7), (0.0, 1e-7)):
+        velocity = motion.sample_velocity(kick, t)
+        assert float(jnp.abs(velocity).max()) > 0.1
+        np.testing.assert_allclose(velocity, motion.sample_velocity(kick, inside), atol=1e-5)
+    jitted = jax.jit(motion.sample_velocity)
+    np.testing.assert_array_equal(jitted(kick, jnp.asarray(end + 3.0)), np.zeros(humanoid.nv))
+    np.testing.assert_allclose(jitted(kick, jnp.asarray(end)), motion.sample_velocity(kick, end),
+                               atol=1e-12)
 
 
 def test_clip_forward_kinematics_matches_the_pose_kinematics(humanoid, walk):

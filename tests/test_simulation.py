@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxsim import LinkSpec, build_model, characters, contact, kinematics, rest_pose, simulation
-from jaxsim.dynamics import aba
+from jaxsim.dynamics import aba, solve_spd
 from jaxsim.simulation import SimulationError, init_state, is_finite, simulate, step
 from jaxsim.tracking import tracking_model
 from jaxsim.world import MARS_GRAVITY, Box, make_world
@@ -16,6 +16,11 @@ DT = 1 / 600
 
 def world(**kwargs):
     return make_world(dtype=jnp.float64, **kwargs)
+
+
+def assert_names(message, *parts):
+    for part in parts:
+        assert part in message, f"{part!r} not in {message!r}"
 
 
 def single_body(shape, size, mass=5.0):
@@ -249,10 +254,53 @@ def test_a_state_without_contact_memory_is_refused():
     (dict(boxes=[Box("bar", (0, 1, 0), (0.1, -0.1, 0.1))]), "box 'bar': half_size"),
     (dict(boxes=[Box("ground", (0, 1, 0), (0.1, 0.1, 0.1))]), "unique"),
     (dict(gravity=(0, -9.81)), "gravity"),
+    (dict(boxes=[Box("mat", (0, 0, 0), (1, 0.1, 1), np.diag([1.0, -1.0, 1.0]))]),
+     "box 'mat': rotation"),
 ])
 def test_bad_world_parameters_are_named(kwargs, message):
     with pytest.raises(ValueError, match=message):
         world(**kwargs)
+
+
+@pytest.fixture(scope="module")
+def humanoid_at_rest():
+    model = characters.humanoid().astype(jnp.float64)
+    w = world(ground=False)
+    q0 = rest_pose(model, 1.0)
+    return model, w, q0, init_state(model, w, q0)
+
+
+def test_a_raw_deepmimic_frame_is_not_taken_for_a_pose(humanoid_at_rest):
+    """A DeepMimic motion frame is [dt, pose (43)]: passed whole, it would shift every joint."""
+    model, w, q0, _ = humanoid_at_rest
+    frame = jnp.concatenate([jnp.array([1 / 30]), q0])
+    with pytest.raises(ValueError, match=r"\bq\b.*nq = 43.*\(44,\)"):
+        init_state(model, w, frame)
+
+
+@pytest.mark.parametrize("call, argument, size, shape", [
+    (lambda m, w, q, s: init_state(m, w, q, jnp.zeros(35)), "qd", "nv = 34", "(35,)"),
+    (lambda m, w, q, s: step(m, w, s, q[:-1], DT), "target", "nq = 43", "(42,)"),
+    (lambda m, w, q, s: step(m, w, s, q, DT, target_velocity=jnp.zeros(43)),
+     "target_velocity", "nv = 34", "(43,)"),
+    (lambda m, w, q, s: step(m, w, s.replace(q=q[None]), q, DT), "state.q", "nq = 43",
+     "(1, 43)"),
+    (lambda m, w, q, s: step(m, w, s.replace(qd=jnp.zeros(43)), q, DT), "state.qd", "nv = 34",
+     "(43,)"),
+    (lambda m, w, q, s: simulate(m, w, s, jnp.tile(q, (3, 1))[:, 1:], DT), "targets",
+     "nq = 43", "(3, 42)"),
+    (lambda m, w, q, s: simulate(m, w, s, jnp.tile(q, (3, 1)), DT,
+                                 target_velocities=jnp.zeros((3, 43))),
+     "target_velocities", "nv = 34", "(3, 43)"),
+    (lambda m, w, q, s: solve_spd(m, q, jnp.zeros(34), jnp.append(q, 0.0), DT), "target",
+     "nq = 43", "(44,)"),
+    (lambda m, w, q, s: solve_spd(m, q, jnp.zeros(33), q, DT), "qd", "nv = 34", "(33,)"),
+])
+def test_arrays_of_the_wrong_length_are_named(humanoid_at_rest, call, argument, size, shape):
+    model, w, q0, state = humanoid_at_rest
+    with pytest.raises(ValueError) as info:
+        call(model, w, q0, state)
+    assert_names(str(info.value), argument, size, shape)
 
 
 def test_tracking_gains_cover_the_root_and_the_joints():

@@ -10,6 +10,16 @@ from jaxsim.model import Model, rest_pose
 Y_TO_X = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 
+def half_sizes(shape: str, full):
+    """Half-sizes of a shape (see `Model`) from DeepMimic's full sizes: a sphere's diameter, a
+    capsule's diameter and cylinder length, a box's extents."""
+    if shape == "sphere":
+        return (full[0] / 2, 0.0, 0.0)
+    if shape == "capsule":
+        return (full[0] / 2, full[1] / 2, 0.0)
+    return tuple(s / 2 for s in full)
+
+
 def vertical_extent(model: Model, q=None):
     """Lowest and highest point (Y) of the collision shapes in pose q (the rest pose by default)."""
     q = rest_pose(model) if q is None else q

@@ -6,6 +6,10 @@ LimLow0-2/LimHigh0-2, TorqueLim; `BodyDefs[]` with Shape, Mass, Attach* (body fr
 frame) and Param0-2 (sphere: diameter; capsule: diameter and cylinder length along Y; box: full
 extents). Revolute joints turn about their local Z axis. Controller files list `PDControllers[]`
 with Name, Kp and Kd per joint.
+
+DeepMimic's conventions for "no limit" become the builder's (see `LinkSpec`): TorqueLim 0 is no
+torque limit (np.inf), and a DoF with LimLow > LimHigh has no position limit (∓np.inf). The
+root's limits and torque limit are not read: a free root takes none.
 """
 
 import json
@@ -15,6 +19,7 @@ import numpy as np
 
 from jaxsim import rotations
 from jaxsim.builder import LinkSpec, build_model
+from jaxsim.characters.common import half_sizes
 from jaxsim.model import ModelError
 
 _JOINT_TYPES = {"none": "free", "spherical": "spherical", "revolute": "revolute",
@@ -40,27 +45,54 @@ def _field(record, key, where, kind=float):
 
 
 def _vec(record, prefix, where):
-    values = np.array([_field(record, prefix + axis, where) for axis in "XYZ"])
-    for axis, value in zip("XYZ", values):
-        if not np.isfinite(value):
-            raise ModelError(f"{where}: field {prefix + axis!r} must be finite, got {value}")
-    return values
+    return np.array([_finite(record, prefix + axis, where) for axis in "XYZ"])
 
 
-def _half_sizes(shape, body, where):
+def _shape_size(shape, body, where):
+    used = {"sphere": 1, "capsule": 2, "box": 3}
+    if shape not in used:
+        raise ModelError(f"{where}: field 'Shape' must be sphere, capsule or box, got {shape!r}")
     p = [_field(body, f"Param{k}", where) for k in range(3)]
-    used = {"sphere": 1, "capsule": 2, "box": 3}.get(shape, 0)
-    for k in range(used):
+    for k in range(used[shape]):
         if not (np.isfinite(p[k]) and p[k] > 0):
             raise ModelError(f"{where}: field 'Param{k}' must be positive for a {shape}, "
                              f"got {p[k]}")
-    if shape == "sphere":
-        return (p[0] / 2, 0, 0)
-    if shape == "capsule":
-        return (p[0] / 2, p[1] / 2, 0)
-    if shape == "box":
-        return tuple(x / 2 for x in p)
-    raise ModelError(f"{where}: field 'Shape' must be sphere, capsule or box, got {shape!r}")
+    return half_sizes(shape, p)
+
+
+def _checked(record, key, where, accepts, requirement):
+    """A number field that must pass `accepts` (named in the error by `requirement`)."""
+    value = _field(record, key, where)
+    if not accepts(value):
+        raise ModelError(f"{where}: field {key!r} must be {requirement}, got {value}")
+    return value
+
+
+def _finite(record, key, where):
+    return _checked(record, key, where, np.isfinite, "finite")
+
+
+def _gain(record, key, where):
+    return _checked(record, key, where, lambda v: np.isfinite(v) and v >= 0,
+                    "finite and non-negative")
+
+
+def _limits(joint, n_dof, where):
+    """Per-DoF (lower, upper) position limits. DeepMimic marks a DoF without limits by
+    LimLow > LimHigh (its default is 1 > 0); such a DoF gets −inf and inf."""
+    if n_dof == 0:
+        return -np.inf, np.inf
+    low, high = (np.array([_finite(joint, f"{side}{i}", where) for i in range(n_dof)])
+                 for side in ("LimLow", "LimHigh"))
+    unlimited = low > high
+    return np.where(unlimited, -np.inf, low), np.where(unlimited, np.inf, high)
+
+
+def _torque_limit(joint, where):
+    """TorqueLim, where 0 (what DeepMimic writes for the unactuated root) means no limit."""
+    limit = _checked(joint, "TorqueLim", where, lambda v: v >= 0,
+                     "non-negative (0 for no limit)")
+    return limit if limit > 0 else np.inf
 
 
 def _read_gains(path):
@@ -71,8 +103,8 @@ def _read_gains(path):
     for k, ctrl in enumerate(data["PDControllers"]):
         where = f"{path}: PDControllers[{k}]"
         name = _field(ctrl, "Name", where, str)
-        gains[name] = (_field(ctrl, "Kp", f"{where} ({name})"),
-                       _field(ctrl, "Kd", f"{where} ({name})"))
+        gains[name] = (_gain(ctrl, "Kp", f"{where} ({name})"),
+                       _gain(ctrl, "Kd", f"{where} ({name})"))
     return gains
 
 
@@ -120,14 +152,11 @@ def load_deepmimic(path, controller=None, dtype=None):
         body = bodies[joint_id]
         body_where = f"{path}: body {body.get('Name', joint_id)!r}"
         shape = _field(body, "Shape", body_where, str)
-        mass = _field(body, "Mass", body_where)
-        if not mass > 0:
-            raise ModelError(f"{body_where}: field 'Mass' must be positive, got {mass}")
-        n_limits = _LIMIT_SLOTS[kind]
-        torque_limit = _field(joint, "TorqueLim", where) if kind in ("spherical", "revolute") \
-            else np.inf
+        mass = _checked(body, "Mass", body_where, lambda v: v > 0, "positive")
+        actuated = kind in ("spherical", "revolute")
+        q_lower, q_upper = _limits(joint, _LIMIT_SLOTS[kind], where)
         kp, kd = gains.get(name, (0.0, 0.0))
-        if controller is not None and kind in ("spherical", "revolute") and name not in gains:
+        if controller is not None and actuated and name not in gains:
             raise ModelError(f"{controller}: no PD controller for joint {name!r}")
         links.append(LinkSpec(
             name=name, parent=names_by_id.get(parent_id), joint=kind, mass=mass,
@@ -137,10 +166,9 @@ def load_deepmimic(path, controller=None, dtype=None):
             shape_pos=_vec(body, "Attach", body_where),
             shape_rot=np.asarray(rotations.euler_xyz_to_matrix(
                 _vec(body, "AttachTheta", body_where))),
-            shape_size=_half_sizes(shape, body, body_where), kp=kp, kd=kd,
-            torque_limit=torque_limit if torque_limit > 0 else np.inf,
-            q_lower=[_field(joint, f"LimLow{i}", where) for i in range(n_limits)] or -np.inf,
-            q_upper=[_field(joint, f"LimHigh{i}", where) for i in range(n_limits)] or np.inf))
+            shape_size=_shape_size(shape, body, body_where), kp=kp, kd=kd,
+            torque_limit=_torque_limit(joint, where) if actuated else np.inf,
+            q_lower=q_lower, q_upper=q_upper))
         names_by_id[joint_id] = name
     kwargs = {} if dtype is None else {"dtype": dtype}
     return build_model(links, source=path, **kwargs)

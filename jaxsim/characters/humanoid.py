@@ -10,7 +10,7 @@ from typing import Mapping
 import numpy as np
 
 from jaxsim.builder import LinkSpec, build_model
-from jaxsim.characters.common import vertical_extent
+from jaxsim.characters.common import half_sizes, vertical_extent
 
 # name, parent, joint, joint position, shape, shape position, shape full sizes, mass,
 # kp, kd, torque limit, (lower limits), (upper limits)
@@ -59,21 +59,13 @@ REFERENCE_MASS = 45.0
 END_EFFECTORS = ("right_ankle", "left_ankle", "right_wrist", "left_wrist", "neck")
 
 
-def _half_sizes(shape, full):
-    if shape == "sphere":
-        return (full[0] / 2, 0, 0)
-    if shape == "capsule":
-        return (full[0] / 2, full[1] / 2, 0)
-    return tuple(s / 2 for s in full)
-
-
 def _links(length_scale: Mapping[str, float], mass_scale: float):
     links = []
     for (name, parent, joint, joint_pos, shape, shape_pos, size, mass, kp, kd, tau_max, low,
          high) in _TABLE:
         parent_scale = length_scale.get(parent, 1.0) if parent else 1.0
         own = length_scale.get(name, 1.0)
-        half = np.array(_half_sizes(shape, size), float)
+        half = np.array(half_sizes(shape, size), float)
         if shape == "capsule":
             half[1] *= own          # a longer limb, not a thicker one
         else:

@@ -3,7 +3,7 @@
 23 links: a free pelvis, two spine links, neck, head, four legs of four spherical joints each
 (shoulder/hip, elbow/knee, wrist/ankle, toe) and a two-link tail: 6 + 22 × 3 = 72 DoF. The deepest
 root-to-leaf path (pelvis → spine → chest → front leg → toe) has 6 + 6 × 3 = 24 DoF. Proportions
-are those of a medium-sized dog (about 30 kg); it faces +X with Y up.
+are those of a medium-sized dog; the masses add up to 39.3 kg. It faces +X with Y up.
 """
 
 import numpy as np

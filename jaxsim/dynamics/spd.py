@@ -23,7 +23,7 @@ from jaxsim.dynamics.aba import aba, articulated_body_solve
 from jaxsim.dynamics.crba import mass_matrix
 from jaxsim.dynamics.ltdl import ltdl_factor, ltdl_solve
 from jaxsim.dynamics.rnea import bias_torques
-from jaxsim.model import Model
+from jaxsim.model import Model, check_layout
 
 METHODS = ("dense", "sparse", "maba", "pd")
 
@@ -41,16 +41,12 @@ def pose_error(model: Model, q, target):
     if len(rev):
         err = err.at[topo.dof_offsets[rev]].set(q[topo.q_offsets[rev]] - target[topo.q_offsets[rev]])
 
-    def rotation_error(current, desired):
-        return rotations.quat_to_rotvec(
-            rotations.quat_multiply(rotations.quat_conjugate(desired), current))
-
     qi, vi = topo.spherical_indices
     if len(qi):
-        err = err.at[vi].set(rotation_error(q[qi], target[qi]))
+        err = err.at[vi].set(rotations.relative_rotvec(target[qi], q[qi]))
     if topo.floating:
         rot = rotations.quat_to_matrix(rotations.quat_normalize(q[3:7]))
-        err = err.at[0:3].set(rotation_error(q[3:7], target[3:7]))
+        err = err.at[0:3].set(rotations.relative_rotvec(target[3:7], q[3:7]))
         err = err.at[3:6].set(rot.T @ (q[0:3] - target[0:3]))
     return err
 
@@ -72,7 +68,13 @@ def solve_spd(model: Model, q, qd, target, dt, method="maba", f_ext=None, gravit
     `f_ext` (n_links, 6): spatial forces on the links in link coordinates; `gravity`: 3-vector;
     `extra_torque` (nv): joint torques applied as given (joint-limit penalties), which are not
     part of the returned motor torques τ = Q − K_d Δt q̈ (eq. 2.17); `target_velocity` (nv): q̄̇.
+    Arrays of the wrong length raise ValueError.
     """
+    for name, value, layout in (("q", q, "nq"), ("qd", qd, "nv"), ("target", target, "nq"),
+                                ("extra_torque", extra_torque, "nv"),
+                                ("target_velocity", target_velocity, "nv")):
+        if value is not None:
+            check_layout(model, name, value, layout)
     extra = jnp.zeros_like(qd) if extra_torque is None else extra_torque
     if method == "pd":
         tau = (-model.kp * pose_error(model, q, target)

@@ -283,13 +283,15 @@ def _check_once_per_frame(path, name, frames, frame_lines, lines):
 
 def _bone_values(path, texts, lines, count):
     """The values on a bone's lines, (len(lines), count): all at once with NumPy, or line by
-    line when that fails, so that the faulty line is reported."""
+    line when that fails or finds a non-finite value, so that the faulty line is reported."""
     tokens = " ".join(texts).split()
     if len(tokens) == len(texts) * count:
         try:
-            return np.array(tokens, float).reshape(len(texts), count)
+            values = np.array(tokens, float)
         except ValueError:
-            pass
+            values = None
+        if values is not None and np.all(np.isfinite(values)):
+            return values.reshape(len(texts), count)
     rows = [floats(path, line, text.split(), count) for text, line in zip(texts, lines)]
     return np.array(rows, float).reshape(len(texts), count)
 
@@ -318,6 +320,9 @@ def load_amc(path, skeleton: AsfSkeleton, frame_rate: float = 120.0) -> Skeleton
     if not isinstance(skeleton, AsfSkeleton):
         raise TypeError("load_amc needs the skeleton that load_asf returns (it knows the dofs)")
     path = os.fspath(path)
+    if not (np.isfinite(frame_rate) and frame_rate > 0):
+        raise ValueError(f"{path}: frame_rate must be a positive number of frames per second, "
+                         f"got {frame_rate!r}")
     values, degrees = _amc_values(path, skeleton)
     n_frames = len(values[0])
     root_positions = np.tile(skeleton.rest_positions[0], (n_frames, 1))

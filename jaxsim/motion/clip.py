@@ -3,14 +3,16 @@
 A `Clip` holds frame start times and poses in the character's q layout (DeepMimic's pose layout:
 root position, root quaternion, then per joint a quaternion or an angle). Between frames, positions
 and angles are interpolated linearly and quaternions by slerp, q(s) = q₀ ⊗ exp(s log(q₀⁻¹ q₁)).
-Velocities are the exact derivative of that interpolant (constant within a frame interval), in
-the generalised-velocity layout: body-frame rotation rates log(q₀⁻¹ q₁)/Δt for the root and the
-spherical joints, the root's linear velocity in its body frame, and angle rates.
+Velocities are the exact derivative of that interpolant, in the generalised-velocity layout:
+body-frame rotation rates log(q₀⁻¹ q₁)/Δt for the root and the spherical joints (constant within a
+frame interval), the root's linear velocity in its body frame, and angle rates.
 
 A looping clip repeats: time wraps, and each completed cycle carries the root's horizontal (X, Z)
-displacement over one cycle, so a walk keeps walking forward. A non-looping clip holds its last
-frame. `Clip` is a pytree (times and poses are arrays) with its character's topology as static
-metadata, so sampling is jittable and vmappable over time.
+displacement over one cycle, so a walk keeps walking forward. A non-looping clip holds its first
+frame before t = 0 and its last frame after its end, and its velocity there is zero; at t = 0 and
+t = duration themselves it is the first and the last interval's. `Clip` is a pytree (times and
+poses are arrays) with its character's topology as static metadata, so sampling is jittable and
+vmappable over time.
 """
 
 import dataclasses
@@ -55,11 +57,6 @@ def _rotation_indices(topology: Topology):
     return quats, rates
 
 
-def _relative_rotation(q0, q1):
-    """log(q₀⁻¹ ⊗ q₁): the body-frame rotation vector from q₀ to q₁ (shortest arc)."""
-    return rotations.quat_to_rotvec(rotations.quat_multiply(rotations.quat_conjugate(q0), q1))
-
-
 def _cycle_offset(clip: Clip):
     """Horizontal root displacement over one cycle (X, Z; Y is kept)."""
     delta = clip.poses[-1, :3] - clip.poses[0, :3]
@@ -88,7 +85,7 @@ def sample_pose(clip: Clip, t):
     pose = q0 + s * (q1 - q0)
     quats, _ = _rotation_indices(clip.topology)
     turned = rotations.quat_multiply(
-        q0[quats], rotations.rotvec_to_quat(s * _relative_rotation(q0[quats], q1[quats])))
+        q0[quats], rotations.rotvec_to_quat(s * rotations.relative_rotvec(q0[quats], q1[quats])))
     pose = pose.at[quats].set(turned)
     if clip.topology.floating:
         pose = pose.at[:3].add(cycles * _cycle_offset(clip))
@@ -106,11 +103,13 @@ def sample_velocity(clip: Clip, t):
         qd = qd.at[topo.dof_offsets[rev]].set(
             (q1[topo.q_offsets[rev]] - q0[topo.q_offsets[rev]]) / interval)
     quats, rates = _rotation_indices(topo)
-    qd = qd.at[rates].set(_relative_rotation(q0[quats], q1[quats]) / interval)
+    qd = qd.at[rates].set(rotations.relative_rotvec(q0[quats], q1[quats]) / interval)
     if topo.floating:
         rot = rotations.quat_to_matrix(sample_pose(clip, t)[3:7])
         qd = qd.at[3:6].set(rot.T @ ((q1[:3] - q0[:3]) / interval))
-    return qd
+    if clip.loop:
+        return qd
+    return jnp.where((t >= 0) & (t <= clip.duration), qd, jnp.zeros_like(qd))
 
 
 def link_positions(model: Model, clip: Clip, times):

@@ -1,5 +1,7 @@
 """Line-oriented reading of motion-capture text files, with errors that say where."""
 
+import math
+
 from jaxsim.motion.deepmimic import MotionFileError
 
 
@@ -14,10 +16,15 @@ def read_lines(path):
 
 
 def floats(path, line, tokens, count=None):
-    """The numbers in `tokens` (exactly `count` of them unless count is None)."""
+    """The finite numbers in `tokens` (exactly `count` of them unless count is None); "nan" and
+    "inf", which Python would read, are refused."""
     if count is not None and len(tokens) != count:
         raise fail(path, line, f"expected {count} values, got {len(tokens)}")
     try:
-        return [float(t) for t in tokens]
+        values = [float(t) for t in tokens]
     except ValueError:
         raise fail(path, line, f"not a number in {' '.join(tokens)!r}") from None
+    bad = [t for t, v in zip(tokens, values) if not math.isfinite(v)]
+    if bad:
+        raise fail(path, line, f"not a finite number: {bad[0]!r}")
+    return values
