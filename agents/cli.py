@@ -87,20 +87,31 @@ def _cmd_pvae_train(args):
 
     try:
         pvae_commands.train(args.config, args.out, args.set)
-    except (ConfigError, DatasetError, ValueError) as error:
+    except (ConfigError, DatasetError) as error:
         raise SystemExit(f"takeoff pvae train: {error}")
+
+
+def _run_errors():
+    """The errors of a training or evaluation run that are the user's to fix: a config, data
+    or run directory that cannot be used, or a run that went non-finite."""
+    from agents.checkpoint import CheckpointError
+    from agents.config import ConfigError
+    from agents.datadir import DataDirError
+    from agents.trainer import TrainingError
+    from jaxsim.model import ModelError
+    from jaxsim.motion import MotionFileError
+
+    return ConfigError, DataDirError, CheckpointError, TrainingError, ModelError, MotionFileError
 
 
 def _cmd_train(args):
     from agents import train_commands
-    from agents.config import ConfigError
-    from agents.datadir import DataDirError
 
     if (args.config is None) == (args.resume is None):
         raise SystemExit("takeoff train: give a CONFIG to start a run or --resume DIR, not both")
     try:
         train_commands.train(args.config, args.out, args.set, args.resume, args.data_dir)
-    except (ConfigError, DataDirError, FileNotFoundError, ValueError) as error:
+    except _run_errors() as error:
         raise SystemExit(f"takeoff train: {error}")
     except KeyboardInterrupt:
         raise SystemExit(130)
@@ -108,12 +119,10 @@ def _cmd_train(args):
 
 def _cmd_eval(args):
     from agents import train_commands
-    from agents.config import ConfigError
-    from agents.datadir import DataDirError
 
     try:
         train_commands.evaluate(args.run_dir, args.episodes, args.render, args.data_dir)
-    except (ConfigError, DataDirError, FileNotFoundError, ValueError) as error:
+    except _run_errors() as error:
         raise SystemExit(f"takeoff eval: {error}")
 
 
@@ -124,6 +133,17 @@ def _cmd_plot(args):
     if path is None:
         raise SystemExit(f"takeoff plot: {args.run_dir} has no metrics yet")
     print(f"wrote {path}")
+
+
+def _positive_int(text):
+    """An argparse type: a whole number ≥ 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number ≥ 1; got {text!r}")
+    return value
 
 
 def build_parser():
@@ -171,7 +191,8 @@ def build_parser():
     p.set_defaults(run=_cmd_train)
     p = sub.add_parser("eval", help="run a trained policy deterministically and report")
     p.add_argument("run_dir", help="a run directory from takeoff train")
-    p.add_argument("--episodes", type=int, default=8)
+    p.add_argument("--episodes", type=_positive_int, default=8,
+                   help="how many episodes to run (default 8)")
     p.add_argument("--render", metavar="OUT.gif", help="also write an animation of episode 0")
     p.add_argument("--data-dir", help="reference data directory (default: $TAKEOFF_DATA)")
     p.set_defaults(run=_cmd_eval)

@@ -6,9 +6,13 @@ unknown key, a wrong type or a value the dataclass's own `__post_init__` rejects
 naming the file and the dotted key. Overrides `section.key=value` (the `--set` of the command line)
 are applied before checking; the value is read as a TOML value, or as a string when it is not one
 (so `--set search.strategy=random` needs no quotes).
+
+`check_positive` is the number check the settings dataclasses share; `run_directory` is where a
+new run from a config goes.
 """
 
 import dataclasses
+import math
 import tomllib
 import typing
 from pathlib import Path
@@ -16,6 +20,28 @@ from pathlib import Path
 
 class ConfigError(ValueError):
     """A config file or override that cannot be used; the message names the file and key."""
+
+
+def check_positive(settings, names, allow_zero=False):
+    """For a settings dataclass's `__post_init__`: a ValueError naming the first of the fields
+    `names` whose value is not a finite number above zero (or at least zero, with `allow_zero`);
+    NaN and ±inf are refused."""
+    for name in names:
+        value = getattr(settings, name)
+        if not (math.isfinite(value) and (value >= 0 if allow_zero else value > 0)):
+            raise ValueError(f"{name} must be a finite number {'≥ 0' if allow_zero else '> 0'}; "
+                             f"got {value}")
+
+
+def run_directory(config_path, out_dir, holds_run, advice) -> Path:
+    """The directory of a new run from the config at `config_path`: `out_dir`, else
+    runs/<config name>. When `holds_run(directory)` says a run is already there, a ConfigError
+    refuses it, so no run is overwritten or mixed with another; its message ends with `advice`,
+    in which "{run_dir}" stands for the directory."""
+    run_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
+    if holds_run(run_dir):
+        raise ConfigError(f"{run_dir} already holds a run; {advice.format(run_dir=run_dir)}")
+    return run_dir
 
 
 def load(path, schema, overrides=()):

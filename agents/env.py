@@ -17,11 +17,12 @@ time limit: the episode was cut short, so the value of the last observation is b
 """
 
 import dataclasses
-import math
 from typing import Any, Protocol
 
 import jax
 import jax.numpy as jnp
+
+from agents.config import check_positive
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,12 +70,14 @@ class Env(Protocol):
 
 
 def end_of_step(state: EnvState, physics, obs, reward, terminated, task, metrics,
-                episode_steps: int) -> EnvState:
-    """The state after a step: counts it, and truncates at the time limit unless terminated."""
+                episode_steps: int, time_is_up=False) -> EnvState:
+    """The state after a step: counts it, and truncates it unless terminated when the time limit
+    of `episode_steps` is reached or the task says its own time is up (`time_is_up`)."""
     steps = state.steps + 1
     terminated = jnp.asarray(terminated, bool)
+    truncated = (steps >= episode_steps) | jnp.asarray(time_is_up, bool)
     return EnvState(physics, obs, jnp.asarray(reward, obs.dtype), terminated,
-                    (steps >= episode_steps) & ~terminated, steps, state.key, task, metrics)
+                    truncated & ~terminated, steps, state.key, task, metrics)
 
 
 def start_of_episode(physics, obs, key, task, metrics) -> EnvState:
@@ -84,15 +87,31 @@ def start_of_episode(physics, obs, key, task, metrics) -> EnvState:
                     jnp.zeros((), jnp.int32), key, task, metrics)
 
 
-def check_timing(settings):
-    """Validate a task's `control_hz`, `sim_hz`, `episode_seconds` and `action_scale` (positive
-    and finite; the simulation rate a whole multiple of the control rate, so each control step
-    is a whole number of substeps); a ValueError names the key."""
-    for name in ("control_hz", "sim_hz", "episode_seconds", "action_scale"):
-        value = getattr(settings, name)
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be positive; got {value}")
+class TaskTiming:
+    """Mixed into a task's settings dataclass, which has the fields `control_hz`, `sim_hz`,
+    `episode_seconds` and `action_scale`: the step counts they give."""
+
+    @property
+    def substeps(self) -> int:
+        """Simulation steps per control step."""
+        return int(round(self.sim_hz / self.control_hz))
+
+    @property
+    def episode_steps(self) -> int:
+        """The time limit, in control steps."""
+        return int(round(self.episode_seconds * self.control_hz))
+
+
+def check_timing(settings: TaskTiming):
+    """Validate a task's `control_hz`, `sim_hz`, `episode_seconds` and `action_scale` (finite and
+    positive; the simulation rate a whole multiple of the control rate, so each control step
+    is a whole number of substeps; an episode at least one control step long); a ValueError
+    names the key."""
+    check_positive(settings, ("control_hz", "sim_hz", "episode_seconds", "action_scale"))
     ratio = settings.sim_hz / settings.control_hz
     if ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
         raise ValueError(f"sim_hz must be a whole multiple of control_hz; got "
                          f"{settings.sim_hz} and {settings.control_hz}")
+    if settings.episode_steps < 1:
+        raise ValueError(f"episode_seconds must last at least one control step "
+                         f"(1/{settings.control_hz} s); got {settings.episode_seconds}")

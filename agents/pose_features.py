@@ -9,7 +9,7 @@ the character stands and however its pelvis is turned.
 Decoder output ("PD target"): per actuated joint in link order, the 6D rotation of a spherical
 joint or the angle of a revolute one. A decoded target becomes joint targets in exponential
 coordinates (a rotation vector per spherical joint, an angle per revolute joint): the space in which
-the policy's offset is added (eq. 3.4) and from which `target_pose` builds a full pose vector.
+the policy's offset is added (eq. 3.4) and from which `exp_to_pose` builds a full pose vector.
 
 All functions act on one pose and are jittable and differentiable; vmap them over a batch.
 """

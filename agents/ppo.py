@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from agents.config import check_positive
 from agents.networks import PolicyNetwork, ValueNetwork, action_distribution, sigma_at
 
 _ADVANTAGE_EPS = 1e-8
@@ -49,16 +50,12 @@ class PPOSettings:
         for name in ("gamma", "lam"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1]; got {getattr(self, name)}")
-        for name in ("clip", "policy_lr", "value_lr", "sigma_start", "sigma_end",
-                     "sigma_horizon"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive; got {getattr(self, name)}")
+        check_positive(self, ("clip", "policy_lr", "value_lr", "sigma_start", "sigma_end",
+                              "sigma_horizon"))
+        check_positive(self, ("max_grad_norm",), allow_zero=True)
         for name in ("epochs", "minibatch_size"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1; got {getattr(self, name)}")
-        if not self.max_grad_norm >= 0:
-            raise ValueError(f"max_grad_norm must be ≥ 0 (0 disables clipping); got "
-                             f"{self.max_grad_norm}")
         if not self.hidden or min(self.hidden) < 1:
             raise ValueError(f"hidden must list positive layer widths; got {self.hidden}")
 

@@ -27,6 +27,7 @@ import optax
 
 from agents import pose_dataset, pose_features
 from agents import config as config_io
+from agents.checkpoint import CheckpointError, fill, read_msgpack
 from jaxsim.atomic import atomic_path, write_text_atomic
 from jaxsim.model import Model
 
@@ -58,8 +59,7 @@ class ModelSettings:
             raise ValueError(f"latent_size must be at least 1; got {self.latent_size}")
         if not self.hidden or min(self.hidden) < 1:
             raise ValueError(f"hidden must list positive layer widths; got {self.hidden}")
-        if self.beta < 0:
-            raise ValueError(f"beta must be ≥ 0; got {self.beta}")
+        config_io.check_positive(self, ("beta",), allow_zero=True)
 
 
 @dataclass(frozen=True)
@@ -70,8 +70,7 @@ class TrainSettings:
     seed: int = 0
 
     def __post_init__(self):
-        if self.learning_rate <= 0:
-            raise ValueError(f"learning_rate must be positive; got {self.learning_rate}")
+        config_io.check_positive(self, ("learning_rate",))
         if self.batch_size < 1 or self.epochs < 1:
             raise ValueError(f"batch_size and epochs must be at least 1; got "
                              f"{self.batch_size}, {self.epochs}")
@@ -199,8 +198,10 @@ def train(config: PVAEConfig, dataset: pose_dataset.PoseDataset, echo=print) -> 
     x_train, y_train, x_held, y_held = x[train_mask], y[train_mask], x[held_mask], y[held_mask]
     settings = config.train
     if x_train.shape[0] < settings.batch_size:
-        raise ValueError(f"only {x_train.shape[0]} training poses for batch_size "
-                         f"{settings.batch_size}")
+        raise pose_dataset.DatasetError(
+            f"{config.data.dataset}: only {x_train.shape[0]} training poses (after holding out "
+            f"data.validation_fraction = {config.data.validation_fraction}) for "
+            f"train.batch_size = {settings.batch_size}")
 
     network = network_of(config, dataset.targets.shape[1])
     key = jax.random.PRNGKey(settings.seed)
@@ -277,12 +278,14 @@ def save(result: TrainResult, config: PVAEConfig, out_dir):
 
 
 def load_decoder(run_dir, model: Model) -> PoseDecoder:
-    """The decoder of a P-VAE run directory written by `save`, for `model`'s layout."""
+    """The decoder of a P-VAE run directory written by `save`, for `model`'s layout. A missing
+    file, or one that does not fit the run's config or the character (down to each weight
+    array's shape and dtype), is a `CheckpointError` naming the file."""
     run_dir = Path(run_dir)
+    what = f"is {run_dir} a P-VAE run directory (`takeoff pvae train`)?"
     for name in (WEIGHTS_FILE, NORMALISATION_FILE, "config.json"):
         if not (run_dir / name).exists():
-            raise FileNotFoundError(f"{run_dir / name}: missing; is {run_dir} a P-VAE run "
-                                    "directory (`takeoff pvae train`)?")
+            raise CheckpointError(f"{run_dir / name}: missing; {what}")
     config = config_io.build(PVAEConfig, json.loads((run_dir / "config.json").read_text()),
                              str(run_dir / "config.json"))
     target_size = pose_features.PoseLayout.of(model).target_size
@@ -291,9 +294,18 @@ def load_decoder(run_dir, model: Model) -> PoseDecoder:
         norm = Normalisation(*(jnp.asarray(data[k]) for k in (
             "feature_mean", "feature_std", "target_mean", "target_std")))
     if norm.target_mean.shape != (target_size,):
-        raise ValueError(f"{run_dir}: this P-VAE decodes {norm.target_mean.shape[0]} numbers; "
-                         f"the character needs {target_size}")
+        raise CheckpointError(f"{run_dir / NORMALISATION_FILE}: this P-VAE decodes "
+                              f"{norm.target_mean.shape[0]} numbers; the character needs "
+                              f"{target_size}")
     template = network.init(jax.random.PRNGKey(0), jnp.zeros((1, norm.feature_mean.shape[0])),
                             jax.random.PRNGKey(0))["params"]
-    params = flax.serialization.from_bytes(template, (run_dir / WEIGHTS_FILE).read_bytes())
+    weights = run_dir / WEIGHTS_FILE
+    stored = read_msgpack(weights, what)
+    if not isinstance(stored, dict):
+        raise CheckpointError(f"{weights}: not a table of network weights")
+    try:
+        params = flax.serialization.from_state_dict(template, stored)
+    except ValueError as error:
+        raise CheckpointError(f"{weights}: {error}") from None
+    params = fill(template, jax.tree_util.tree_leaves(params), weights, "this P-VAE's config")
     return PoseDecoder(params, norm, network)

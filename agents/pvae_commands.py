@@ -32,11 +32,14 @@ def build_dataset(data_dir, out, echo=print):
 
 
 def train(config_path, out_dir=None, overrides=(), echo=print):
-    """Train a P-VAE from a config; weights, normalisation, config and report in out_dir."""
+    """Train a P-VAE from a config; weights, normalisation, config and report in out_dir
+    (default runs/<config name>), which must be new or empty."""
     config = config_io.load(config_path, pvae.PVAEConfig, overrides)
+    out_dir = config_io.run_directory(config_path, out_dir,
+                                      lambda d: d.is_dir() and any(d.iterdir()),
+                                      "pick another --out, or empty it first")
     model = characters.humanoid()
     dataset = pose_dataset.load(config.data.dataset, model)
-    out_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
     echo(f"P-VAE: {len(dataset)} poses from {config.data.dataset}, latent "
          f"{config.model.latent_size}, {config.train.epochs} epochs → {out_dir}")
     result = pvae.train(config, dataset, echo)

@@ -1,7 +1,9 @@
 """`takeoff train`, `takeoff eval` and `takeoff plot`: training runs from TOML configs.
 
 A run directory holds the resolved config (`config.json`), `metrics.jsonl` (one line per
-iteration), `checkpoint.msgpack` (written atomically) and `learning_curve.png`.
+iteration), `checkpoint.msgpack` (written atomically) and `learning_curve.png`. A resumed run
+may change how long it runs, its learning settings and its task's settings with `--set`, but
+not what its checkpoint fixes (`FIXED_ON_RESUME`).
 """
 
 import dataclasses
@@ -26,6 +28,10 @@ from jaxsim.atomic import write_text_atomic
 TASKS = ("imitation", "reach")
 CONFIG = "config.json"
 CURVE = "learning_curve.png"
+# Keys a resumed run cannot change: the seed (the checkpoint holds the PRNG state), the rollout's
+# size, and what sets the networks' input and output sizes and hidden layers.
+FIXED_ON_RESUME = (*(f"run.{name}" for name in RunSettings.SHAPING), "ppo.hidden",
+                   "imitation.character", "imitation.phase_in_observation")
 
 
 @dataclass(frozen=True)
@@ -39,6 +45,12 @@ class TrainConfig:
         if self.run.task not in TASKS:
             raise ValueError(f"run.task must be one of {', '.join(TASKS)}; got "
                              f"{self.run.task!r}")
+        run, minibatch = self.run, self.ppo.minibatch_size
+        if run.samples_per_iteration < minibatch:
+            raise ValueError(f"run.envs × run.steps_per_iteration = {run.envs} × "
+                             f"{run.steps_per_iteration} = {run.samples_per_iteration} samples "
+                             f"per iteration, fewer than one minibatch (ppo.minibatch_size = "
+                             f"{minibatch})")
 
 
 def make_env(config: TrainConfig, data_dir=None):
@@ -62,6 +74,15 @@ def _compiled_trainer(config: TrainConfig, data_dir) -> trainer_lib.Trainer:
     return trainer_lib.Trainer(env, env.default_params(), config.run, config.ppo)
 
 
+def _trainer_for(config: TrainConfig, source, data_dir) -> trainer_lib.Trainer:
+    """`make_trainer`, with a task setting that does not fit the data (a ConfigError of the
+    task) reported against the config file `source`."""
+    try:
+        return make_trainer(config, data_dir)
+    except config_io.ConfigError as error:
+        raise config_io.ConfigError(f"{source}: [{config.run.task}]: {error}") from None
+
+
 def load_run_config(run_dir) -> TrainConfig:
     path = Path(run_dir) / CONFIG
     if not path.exists():
@@ -74,17 +95,17 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
     """Start a run from a config (in out_dir, default runs/<config name>) or resume one."""
     if resume is not None:
         run_dir = Path(resume)
+        source = run_dir / CONFIG
         config = load_run_config(run_dir)
         if overrides:
-            config = config_io.build(TrainConfig, _with_overrides(config, overrides, run_dir),
-                                     str(run_dir / CONFIG))
+            config = _resume_overrides(config, overrides, source)
     else:
+        source = config_path
         config = config_io.load(config_path, TrainConfig, overrides)
-        run_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
-        if (run_dir / trainer_lib.CHECKPOINT).exists():
-            raise config_io.ConfigError(f"{run_dir} already holds a run; resume it with "
-                                        f"`takeoff train --resume {run_dir}` or pick --out")
-    trainer = make_trainer(config, data_dir)
+        run_dir = config_io.run_directory(
+            config_path, out_dir, lambda d: (d / trainer_lib.CHECKPOINT).exists(),
+            "resume it with `takeoff train --resume {run_dir}` or pick another --out")
+    trainer = _trainer_for(config, source, data_dir)
     state = trainer.init()
     if resume is not None:     # the checkpoint must fit (overrides included) before anything
         state = trainer_lib.load_checkpoint(state, run_dir)        # in run_dir is rewritten
@@ -105,11 +126,22 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
     return trainer, state
 
 
-def _with_overrides(config, overrides, run_dir):
+def _resume_overrides(config: TrainConfig, overrides, source) -> TrainConfig:
+    """The config of a resumed run with `overrides` applied; a ConfigError if one changes a key
+    of `FIXED_ON_RESUME`."""
     data = json.loads(json.dumps(dataclasses.asdict(config)))    # tuples become lists
     for override in overrides:
-        config_io.apply_override(data, override, run_dir / CONFIG)
-    return data
+        config_io.apply_override(data, override, source)
+    changed = config_io.build(TrainConfig, data, str(source))
+    for key in FIXED_ON_RESUME:
+        section, name = key.split(".")
+        before, after = (getattr(getattr(c, section), name) for c in (config, changed))
+        if before != after:
+            raise config_io.ConfigError(
+                f"{source}: {key} cannot change when a run is resumed (the run has {before!r}, "
+                f"the override gives {after!r}): its checkpoint fixes it; start a new run "
+                f"instead")
+    return changed
 
 
 def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=print):
@@ -117,7 +149,7 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     starts; report the mean return, length and task metrics over each first episode. Returns
     the summary, the environment and the poses of episode 0 (steps, nq)."""
     config = load_run_config(run_dir)
-    trainer = make_trainer(config, data_dir)
+    trainer = _trainer_for(config, Path(run_dir) / CONFIG, data_dir)
     state = trainer_lib.load_checkpoint(trainer.init(), run_dir)
     env = trainer.env
     rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply,

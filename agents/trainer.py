@@ -1,14 +1,17 @@
 """PPO training as one compiled iteration, and the run directory around it (thesis §3.4.1).
 
-`Trainer(env, env_params, run, ppo)` builds `iteration(state) -> (state, metrics)`: a rollout of
-`steps_per_iteration` control steps for `envs` environments, the observation statistics merged
-in, then the PPO update — all one jitted function. `TrainState` holds everything that evolves
-(networks, optimisers, observation statistics, environments, PRNG key), so a checkpoint is one
-msgpack file and resuming from it continues bit for bit.
+`Trainer(env, env_params, run, ppo)` builds `iteration(state) -> (state, metrics, finite)`: a
+rollout of `steps_per_iteration` control steps for `envs` environments, the observation
+statistics merged in, then the PPO update — all one jitted function. `TrainState` holds
+everything that evolves (networks, optimisers, observation statistics, environments, PRNG key),
+so a checkpoint is one msgpack file and resuming from it continues bit for bit.
 
 The Python loop in `run` only logs (`metrics.jsonl`, one line per iteration), shows progress,
 checkpoints atomically every `checkpoint_every` iterations and at the end, and on Ctrl-C saves
-a checkpoint before it stops.
+a checkpoint before it stops. Each iteration also reports one flag, computed in the compiled
+function, that its rewards, observation statistics, losses and network parameters are all
+finite; when they are not, the loop stops with a `TrainingError` naming the iteration and the
+quantities, and saves nothing, so the last checkpoint (of finite weights) is kept.
 """
 
 import copy
@@ -23,12 +26,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents import rollout as rollout_lib
+from agents.checkpoint import fill, read_msgpack
 from agents.networks import sigma_at
 from agents.ppo import PPOSettings, PPOState, RunningNorm, make_ppo
 from jaxsim.atomic import atomic_path
 
 CHECKPOINT = "checkpoint.msgpack"
 METRICS = "metrics.jsonl"
+
+
+class TrainingError(ValueError):
+    """A run that cannot go on: values that went non-finite, or an unreadable metrics log; the
+    message names the run directory or file and the iteration or line."""
 
 
 @dataclass(frozen=True)
@@ -43,6 +52,10 @@ class RunSettings:
     checkpoint_every: int = 50        # iterations
     progress_every: int = 1           # iterations between progress-line updates
     time_limit_minutes: float = 0.0   # stop (with a checkpoint) after this long; 0: no limit
+
+    # What the computation (and the checkpoint) of a run is made of; the rest says how long
+    # the loop runs and how often it reports.
+    SHAPING = ("task", "envs", "steps_per_iteration", "seed")
 
     def __post_init__(self):
         for name in ("envs", "steps_per_iteration", "iterations", "checkpoint_every",
@@ -84,9 +97,8 @@ class Trainer:
     def with_run_settings(self, run: RunSettings) -> "Trainer":
         """The same compiled trainer with other loop settings (iterations, checkpointing);
         the settings that shape the computation must be equal."""
-        same = ("task", "envs", "steps_per_iteration", "seed")
-        if any(getattr(run, k) != getattr(self.run_settings, k) for k in same):
-            raise ValueError("with_run_settings cannot change " + ", ".join(same))
+        if any(getattr(run, k) != getattr(self.run_settings, k) for k in run.SHAPING):
+            raise ValueError("with_run_settings cannot change " + ", ".join(run.SHAPING))
         twin = copy.copy(self)
         twin.run_settings = run
         return twin
@@ -104,6 +116,7 @@ class Trainer:
         return TrainState(self.ppo.init(ppo_key, runner.envs.obs.dtype), norm, runner, key)
 
     def _iteration(self, state: TrainState):
+        """One iteration: (the next state, its metrics, whether what it computed is finite)."""
         key, rollout_key, update_key = jax.random.split(state.key, 3)
         p = state.ppo
         runner, batch, raw_obs, episodes, env_metrics, _ = self.rollout(
@@ -115,7 +128,22 @@ class Trainer:
         metrics = {**metrics, "return": mean_return, "episode_length": mean_length,
                    "episodes": finished, "reward": jnp.mean(batch.reward),
                    **{f"env/{k}": jnp.mean(v) for k, v in env_metrics.items()}}
-        return TrainState(ppo_state, norm, runner, key), metrics
+        state = TrainState(ppo_state, norm, runner, key)
+        return state, metrics, _all_finite(_watched(state, metrics))
+
+
+def _watched(state: TrainState, metrics) -> dict:
+    """What must stay finite for a run to go on, by name, in the order the values arise."""
+    return {"rewards": metrics["reward"], "observation statistics": state.norm,
+            "policy loss": metrics["policy_loss"], "value loss": metrics["value_loss"],
+            "policy parameters": state.ppo.policy_params,
+            "value parameters": state.ppo.value_params}
+
+
+def _all_finite(tree):
+    """One boolean: every number in the pytree is finite."""
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf))
+                              for leaf in jax.tree_util.tree_leaves(tree)]))
 
 
 # ---- Checkpoints -------------------------------------------------------------------------------
@@ -129,21 +157,11 @@ def save_checkpoint(state: TrainState, run_dir):
 
 def load_checkpoint(template: TrainState, run_dir) -> TrainState:
     """A checkpoint read into the structure of `template` (a fresh `Trainer.init()` of the same
-    config); leaves that do not match in number, shape or dtype are an error."""
+    config); a missing or unreadable file, or leaves that do not match in number, shape or
+    dtype, are a `CheckpointError`."""
     path = Path(run_dir) / CHECKPOINT
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no checkpoint to resume from")
-    paths_leaves, treedef = jax.tree_util.tree_flatten_with_path(template)
-    stored = flax.serialization.msgpack_restore(path.read_bytes())
-    if len(stored) != len(paths_leaves):
-        raise ValueError(f"{path}: the checkpoint holds {len(stored)} arrays, this run's config "
-                         f"needs {len(paths_leaves)} (networks, environments or task changed?)")
-    for array, (where, leaf) in zip(stored, paths_leaves):
-        if np.shape(array) != np.shape(leaf) or np.asarray(array).dtype != np.asarray(leaf).dtype:
-            raise ValueError(f"{path}: {jax.tree_util.keystr(where)} is {np.asarray(array).dtype}"
-                             f"{list(np.shape(array))} in the checkpoint but this run's config "
-                             f"needs {np.asarray(leaf).dtype}{list(np.shape(leaf))}")
-    return jax.tree_util.tree_unflatten(treedef, [jnp.asarray(a) for a in stored])
+    stored = read_msgpack(path, "the run has no checkpoint to resume from")
+    return fill(template, stored, path, "this run's config")
 
 
 def completed_iterations(state: TrainState) -> int:
@@ -164,6 +182,8 @@ def _line(record, total, started, first):
 
 
 def _json_value(value):
+    """A metric as a JSON number; NaN (the mean return and length of an iteration in which no
+    episode ended) becomes null."""
     value = float(value)
     return None if not np.isfinite(value) else value
 
@@ -174,6 +194,7 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
     run_dir = Path(run_dir)
     settings = trainer.run_settings
     first = completed_iterations(state)
+    saved = first                       # the iteration of the checkpoint in run_dir (0: none)
     started = time.perf_counter()
     last_time = started
     try:
@@ -181,8 +202,10 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
             for _ in range(first, settings.iterations):
                 # `state` moves on only once its iteration is logged, so a Ctrl-C checkpoints
                 # the last state whose line is in the log.
-                new_state, metrics = trainer.iteration(state)
+                new_state, metrics, finite = trainer.iteration(state)
                 metrics = jax.device_get(metrics)
+                if not finite:
+                    raise _non_finite(new_state, metrics, run_dir, saved)
                 now = time.perf_counter()
                 record = {"iteration": completed_iterations(new_state),
                           "samples": int(new_state.ppo.samples),
@@ -197,6 +220,7 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
                     echo(_line(record, settings.iterations, started, first))
                 if record["iteration"] % settings.checkpoint_every == 0:
                     save_checkpoint(state, run_dir)
+                    saved = record["iteration"]
                 if settings.time_limit_minutes and now - started > 60 * settings.time_limit_minutes:
                     echo(f"time limit of {settings.time_limit_minutes:g} min reached")
                     break
@@ -206,6 +230,16 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
         raise
     save_checkpoint(state, run_dir)
     return state
+
+
+def _non_finite(state: TrainState, metrics, run_dir, saved) -> TrainingError:
+    """The error of an iteration that produced non-finite values, naming which."""
+    names = [name for name, tree in _watched(state, metrics).items() if not _all_finite(tree)]
+    kept = (f"the checkpoint of iteration {saved} in {run_dir} is kept" if saved else
+            "no checkpoint was written")
+    return TrainingError(f"{run_dir}: iteration {completed_iterations(state)} produced "
+                         f"non-finite {', '.join(names)}; the run stopped without saving it, "
+                         f"and {kept}")
 
 
 def read_metrics(run_dir) -> list[dict]:
@@ -220,7 +254,7 @@ def read_metrics(run_dir) -> list[dict]:
             records.append(json.loads(line))
         except json.JSONDecodeError:
             if number < len(lines):
-                raise ValueError(f"{path}:{number}: not a JSON record") from None
+                raise TrainingError(f"{path}:{number}: not a JSON record") from None
     return records
 
 

@@ -1,5 +1,6 @@
 """The `takeoff` command line: help, `characters`, `mjcf`, and errors a user can act on."""
 
+import importlib
 import xml.etree.ElementTree as ET
 
 import pytest
@@ -89,3 +90,27 @@ def test_bad_character_argument_exits_with_a_message_naming_it(spec, capsys):
         main(["mjcf", spec])
     assert info.value.code != 0
     assert spec in str(info.value.code)
+
+
+def test_eval_needs_at_least_one_episode(tmp_path, capsys):
+    """Bug (reported): `--episodes 0` was accepted and ended in an IndexError."""
+    code, _, err = run(["eval", str(tmp_path), "--episodes", "0"], capsys)
+    assert code == 2
+    assert "--episodes: must be a whole number ≥ 1; got '0'" in err
+
+
+@pytest.mark.parametrize("command, module, function", [
+    (["train", "run.toml"], "train_commands", "train"),
+    (["eval", "run"], "train_commands", "evaluate"),
+    (["pvae", "train", "pvae.toml"], "pvae_commands", "train"),
+])
+def test_an_error_that_is_not_the_user_s_keeps_its_traceback(command, module, function,
+                                                             monkeypatch):
+    """Bug (reported): the commands caught every ValueError, so a genuine bug ended as a
+    one-line message without its traceback. Only the project's own errors are reported."""
+    def broken(*args, **kwargs):
+        raise ValueError("a bug, not a user error")
+
+    monkeypatch.setattr(importlib.import_module(f"agents.{module}"), function, broken)
+    with pytest.raises(ValueError, match="a bug"):
+        main(command)

@@ -292,7 +292,8 @@ def test_a_batch_smaller_than_one_minibatch_is_refused(ppo, batch):
 @pytest.mark.parametrize("key, value", [
     ("gamma", -0.1), ("lam", 1.5), ("clip", 0.0), ("policy_lr", -1e-3), ("epochs", 0),
     ("minibatch_size", 0), ("sigma_end", 0.0), ("sigma_horizon", 0.0), ("max_grad_norm", -1.0),
-    ("hidden", (32, 0))])
+    ("hidden", (32, 0)), ("clip", math.inf), ("value_lr", math.inf), ("sigma_start", math.inf),
+    ("sigma_horizon", math.inf), ("max_grad_norm", math.inf)])
 def test_settings_errors_name_the_key(key, value):
     with pytest.raises(ValueError, match=f"^{key} must"):
         PPOSettings(**{key: value})

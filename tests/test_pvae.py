@@ -8,7 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import flax.serialization
+
 from agents import cli, pose_dataset, pose_features, pvae, pvae_commands, pvae_report
+from agents.checkpoint import CheckpointError
 from agents.config import ConfigError
 from jaxsim import characters, kinematics, motion, rotations
 from conftest import random_state
@@ -201,10 +204,52 @@ def test_cli_trains_from_a_config_and_writes_the_report(dataset, tmp_path, capsy
                  "joint_errors.png", "samples.png", "report.md"):
         assert (tmp_path / "run" / name).exists(), name
     assert "epoch   2/2" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="run already holds a run; pick another --out"):
+        cli.main(["pvae", "train", str(config), "--out", str(tmp_path / "run")])
     with pytest.raises(SystemExit, match="latent_size"):
         cli.main(["pvae", "train", str(config), "--set", "model.latent_size=0"])
     with pytest.raises(ConfigError, match="epochs"):
         pvae_commands.train(config, tmp_path / "x", ["train.epochs=1.5"])
+
+
+@pytest.mark.parametrize("settings, key, value", [
+    (pvae.TrainSettings, "learning_rate", float("nan")), (pvae.TrainSettings, "learning_rate",
+                                                          float("inf")),
+    (pvae.ModelSettings, "beta", float("nan")), (pvae.ModelSettings, "beta", float("inf"))])
+def test_settings_refuse_numbers_that_are_not_finite(settings, key, value):
+    with pytest.raises(ValueError, match=f"^{key} must be a finite number"):
+        settings(**{key: value})
+
+
+def test_weights_that_do_not_fit_name_the_file_and_the_leaf(tmp_path, humanoid):
+    layout = pose_features.PoseLayout.of(humanoid)
+    config = pvae.PVAEConfig(model=pvae.ModelSettings(hidden=(8,)))
+    params = pvae.network_of(config, layout.target_size).init(
+        jax.random.PRNGKey(0), jnp.zeros((1, layout.feature_size)), jax.random.PRNGKey(1))["params"]
+    norm = pvae.Normalisation(jnp.zeros(layout.feature_size), jnp.ones(layout.feature_size),
+                              jnp.zeros(layout.target_size), jnp.ones(layout.target_size))
+    pvae.save(pvae.TrainResult(params, norm, [], 0.0), config, tmp_path)
+    assert pvae.load_decoder(tmp_path, humanoid).params["decoder"]["Dense_0"]["kernel"].shape \
+        == (13, 8)
+    weights = tmp_path / pvae.WEIGHTS_FILE
+
+    def write_changed(change):
+        changed = jax.tree_util.tree_map(np.asarray, params)
+        change(changed)
+        weights.write_bytes(flax.serialization.to_bytes(changed))
+
+    write_changed(lambda p: p["decoder"]["Dense_0"].update(kernel=np.zeros((13, 7), np.float32)))
+    with pytest.raises(CheckpointError, match=r"pvae\.msgpack: \['decoder'\]\['Dense_0'\]"
+                                              r"\['kernel'\] is float32\[13, 7\] in the file but "
+                                              r"this P-VAE's config needs float32\[13, 8\]"):
+        pvae.load_decoder(tmp_path, humanoid)
+    write_changed(lambda p: p["encoder"]["Dense_1"].update(bias=np.zeros(26)))
+    with pytest.raises(CheckpointError, match=r"\['encoder'\]\['Dense_1'\]\['bias'\] is "
+                                              r"float64\[26\] in the file"):
+        pvae.load_decoder(tmp_path, humanoid)
+    write_changed(lambda p: p["decoder"].pop("Dense_1"))
+    with pytest.raises(CheckpointError, match=r"pvae\.msgpack: .*Dense_1"):
+        pvae.load_decoder(tmp_path, humanoid)
 
 
 def test_cli_dataset_needs_a_data_directory(monkeypatch):

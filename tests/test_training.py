@@ -1,6 +1,7 @@
 """Training runs: the rollout's bookkeeping, learning on a small task, resume bit for bit, the
 run directory and the command line."""
 
+import dataclasses
 import json
 
 import jax
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 from agents import cli, train_commands, trainer as trainer_lib
+from agents.checkpoint import CheckpointError
 from agents.config import ConfigError
 from agents.env import end_of_step, start_of_episode
 from agents.ppo import PPOSettings
@@ -179,10 +181,77 @@ def test_eval_reports_and_renders(tmp_path, capsys):
     ("ppo.clip=true", "'ppo.clip' must be a float"),
     ("reach.sim_hz=100.0", "whole multiple"),
     ("run.batch=3", "unknown key 'run.batch'"),
+    ("ppo.policy_lr=inf", "policy_lr must be a finite number > 0; got inf"),
+    ("ppo.sigma_horizon=inf", "sigma_horizon must be a finite number > 0"),
+    ("ppo.max_grad_norm=inf", "max_grad_norm must be a finite number ≥ 0; got inf"),
+    ("reach.episode_seconds=0.01", "episode_seconds must last at least one control step"),
+    ("run.envs=2", r"run\.envs × run\.steps_per_iteration = 2 × 30 = 60 samples per iteration, "
+                   r"fewer than one minibatch \(ppo\.minibatch_size = 256\)"),
 ])
-def test_config_errors_name_the_key(tmp_path, override, message):
-    with pytest.raises(SystemExit, match=message):
+def test_config_errors_name_the_file_and_key_and_write_nothing(tmp_path, override, message):
+    with pytest.raises(SystemExit, match=message) as error:
         cli.main(["train", CONFIG, "--out", str(tmp_path / "r"), "--set", override])
+    assert CONFIG in str(error.value)
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_task_setting_that_does_not_fit_the_data_names_the_config_file(tmp_path, data_dir):
+    config = "configs/imitate_walk.toml"
+    with pytest.raises(SystemExit, match=rf"{config}: \[imitation\]: clip: no file 'walk\.txt'"):
+        cli.main(["train", config, "--out", str(tmp_path / "r"), "--data-dir", str(data_dir),
+                  "--set", "imitation.clip=walk.txt"])
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_run_that_goes_non_finite_stops_and_keeps_the_last_checkpoint(tmp_path):
+    """Resumed with an absurd policy learning rate, the third iteration's policy diverges to
+    inf and NaN: the run stops with a message naming the iteration and what went non-finite,
+    and neither the checkpoint of iteration 2 nor the log is touched."""
+    small_run(tmp_path, 2)
+    run_dir = tmp_path / "run"
+    checkpoint = (run_dir / trainer_lib.CHECKPOINT).read_bytes()
+    with pytest.raises(SystemExit) as error:
+        cli.main(["train", "--resume", str(run_dir), "--set", "run.iterations=6",
+                  "--set", "ppo.policy_lr=1e38"])
+    message = str(error.value)
+    assert message.startswith(f"takeoff train: {run_dir}: iteration 3 produced non-finite ")
+    assert "policy loss" in message and "policy parameters" in message
+    assert "value loss" not in message and "value parameters" not in message
+    assert "rewards" not in message and "observation statistics" not in message
+    assert "checkpoint of iteration 2" in message
+    assert (run_dir / trainer_lib.CHECKPOINT).read_bytes() == checkpoint
+    assert [r["iteration"] for r in trainer_lib.read_metrics(run_dir)] == [1, 2]
+
+
+@pytest.mark.parametrize("override", ["run.seed=5", "run.envs=8", "run.steps_per_iteration=8",
+                                      "ppo.hidden=[8, 8]"])
+def test_resume_refuses_to_change_what_the_checkpoint_fixes(tmp_path, override):
+    small_run(tmp_path, 2)
+    run_dir = tmp_path / "run"
+    recorded = (run_dir / "config.json").read_text()
+    key = override.split("=")[0]
+    with pytest.raises(ConfigError, match=rf"config\.json: {key} cannot change when a run is "
+                                          "resumed"):
+        train_commands.train(resume=run_dir, overrides=[override, "run.iterations=3"],
+                             echo=lambda *_: None)
+    assert (run_dir / "config.json").read_text() == recorded
+    assert [r["iteration"] for r in trainer_lib.read_metrics(run_dir)] == [1, 2]
+
+
+def test_resume_accepts_a_fixed_key_at_the_run_s_own_value(tmp_path):
+    small_run(tmp_path, 2)
+    _, state = train_commands.train(resume=tmp_path / "run", echo=lambda *_: None,
+                                    overrides=["run.iterations=3", "run.seed=0"])
+    assert int(state.ppo.iteration) == 3
+
+
+def test_reach_reset_keeps_a_key_it_did_not_draw_with():
+    """A reset that keeps the key it drew from hands the rollout a key whose splits are the
+    keys already drawn with (jax.random.split(k, 2)[0] == jax.random.split(k, 3)[0])."""
+    env = ReachEnv()
+    key = jax.random.PRNGKey(7)
+    state = env.reset(env.default_params(), key)
+    assert not np.array_equal(np.asarray(state.key), np.asarray(key))
 
 
 def test_train_needs_a_config_or_a_run_to_resume(tmp_path):
@@ -190,3 +259,19 @@ def test_train_needs_a_config_or_a_run_to_resume(tmp_path):
         cli.main(["train"])
     with pytest.raises(SystemExit, match="config.json"):
         cli.main(["train", "--resume", str(tmp_path)])
+    small_run(tmp_path, 1)                          # as if it died before its first checkpoint
+    (tmp_path / "run" / trainer_lib.CHECKPOINT).unlink()
+    with pytest.raises(SystemExit, match=r"checkpoint\.msgpack: missing; the run has no "
+                                         "checkpoint"):
+        cli.main(["train", "--resume", str(tmp_path / "run")])
+
+
+def test_a_checkpoint_that_does_not_fit_names_the_leaf(tmp_path):
+    small_run(tmp_path, 2)
+    config = train_commands.load_run_config(tmp_path / "run")
+    other = train_commands.make_trainer(dataclasses.replace(
+        config, ppo=dataclasses.replace(config.ppo, hidden=(8, 16))))
+    with pytest.raises(CheckpointError, match=r"checkpoint\.msgpack: \.ppo\.policy_params"
+                                              r"\['Dense_0'\]\['bias'\] is float32\[16\] in "
+                                              r"the file but this run's config needs float32\[8\]"):
+        trainer_lib.load_checkpoint(other.init(), tmp_path / "run")

@@ -21,7 +21,10 @@ root is one of DeepMimic's joints, with weight 1 in humanoid3d.txt), ω_j the jo
 (the root's body-frame angular velocity and every joint's rate), the end effectors the ankles and
 wrists, and hats marking the reference. Episodes start at a random time of the clip, in the
 clip's pose and velocity (reference state initialisation), and end early when a link other than
-the feet touches the ground (early termination) or the simulation blows up.
+the feet touches the ground (early termination) or the simulation blows up. With a clip that
+does not loop, an episode also ends when the clip is over (the reference time reaches its
+duration): a truncation, not a termination, since the character did not fail; it is a time limit
+like `episode_seconds`.
 
 The observation is `agents.observations.body_observation` followed, if asked, by the clip's
 phase φ ∈ [0, 1) as (sin 2πφ, cos 2πφ) (thesis §3.4.1; DeepMimic's policy sees the phase).
@@ -34,7 +37,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.env import check_timing, end_of_step, start_of_episode
+from agents.config import ConfigError, check_positive
+from agents.env import TaskTiming, check_timing, end_of_step, start_of_episode
 from agents.observations import body_observation, observation_size
 from agents.pose_features import PoseLayout, exp_to_pose
 from jaxsim import characters, kinematics, motion, rotations, simulation
@@ -48,7 +52,7 @@ REWARD_TERMS = ("pose", "velocity", "end_effector", "com")
 
 
 @dataclass(frozen=True)
-class ImitationSettings:
+class ImitationSettings(TaskTiming):
     """The `[imitation]` config section."""
 
     clip: str = "humanoid3d_walk.txt"        # under <data>/deepmimic/motions, or a path
@@ -77,9 +81,6 @@ class ImitationSettings:
             if not getattr(self, name):
                 raise ValueError(f"{name} must name a file")
         check_timing(self)
-        if self.episode_steps < 1:
-            raise ValueError(f"episode_seconds must last at least one control step "
-                             f"(1/{self.control_hz} s); got {self.episode_seconds}")
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}; got {self.method!r}")
         if self.actions not in ACTION_MODES:
@@ -88,27 +89,16 @@ class ImitationSettings:
         if self.spd_target_velocity not in TARGET_VELOCITIES:
             raise ValueError(f"spd_target_velocity must be one of {', '.join(TARGET_VELOCITIES)}"
                              f"; got {self.spd_target_velocity!r}")
-        for term in REWARD_TERMS:
-            for name in (f"w_{term}", f"k_{term}"):
-                if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
-                    raise ValueError(f"{name} must be a finite number ≥ 0; got "
-                                     f"{getattr(self, name)}")
-
-    @property
-    def substeps(self) -> int:
-        return int(round(self.sim_hz / self.control_hz))
-
-    @property
-    def episode_steps(self) -> int:
-        return int(round(self.episode_seconds * self.control_hz))
+        check_positive(self, [f"{kind}_{term}" for term in REWARD_TERMS for kind in "wk"],
+                       allow_zero=True)
 
 
 def _data_file(name: str, folder: Path, key: str) -> Path:
-    """`name` in `folder` if it is there, else `name` as a path; a ValueError naming `key`."""
+    """`name` in `folder` if it is there, else `name` as a path; a ConfigError naming `key`."""
     for path in (folder / name, Path(name)):
         if path.is_file():
             return path
-    raise ValueError(f"{key}: no file {name!r} in {folder} nor at that path")
+    raise ConfigError(f"{key}: no file {name!r} in {folder} nor at that path")
 
 
 def _joint_dof_table(model) -> np.ndarray:
@@ -131,7 +121,10 @@ def _padded(x):
 class ImitationEnv:
     """A DeepMimic-style imitation task (see the module docstring) with the `agents.env.Env`
     interface. `task` holds the clip time at which the episode started; the reference of control
-    step k is the clip at start + k / control_hz."""
+    step k is the clip at start + k / control_hz.
+
+    Settings that do not fit the data (a clip, character or controller file that is not there,
+    an unknown foot) are a `ConfigError` naming the key of the `[imitation]` section."""
 
     def __init__(self, settings: ImitationSettings, data_dir, dtype=jnp.float32):
         self.settings = settings
@@ -139,7 +132,7 @@ class ImitationEnv:
         character = _data_file(settings.character, deepmimic / "characters", "character")
         controller = deepmimic / "controllers" / f"{character.stem}_ctrl.txt"
         if not controller.is_file():
-            raise ValueError(f"character: no controller file {controller} for {character}")
+            raise ConfigError(f"character: no controller file {controller} for {character}")
         self.model = characters.load_deepmimic(character, controller, dtype=dtype)
         self.clip = motion.load_motion(
             _data_file(settings.clip, deepmimic / "motions", "clip"), self.model)
@@ -147,7 +140,8 @@ class ImitationEnv:
         topo = self.model.topology
         unknown = [name for name in settings.feet if name not in topo.names]
         if unknown:
-            raise ValueError(f"feet: unknown link {unknown[0]!r}; links: {', '.join(topo.names)}")
+            raise ConfigError(f"feet: unknown link {unknown[0]!r}; links: "
+                              f"{', '.join(topo.names)}")
         self._may_touch = np.isin(np.array(topo.names), settings.feet)
         self._ground = self.world.object_index("ground")
         self._end_effectors = np.array([topo.link_index(name) for name in END_EFFECTORS])
@@ -164,7 +158,8 @@ class ImitationEnv:
         return {"gravity": self.world.gravity}
 
     def reference(self, t):
-        """The clip's pose (nq) and velocity (nv) at time t (the clip loops or holds)."""
+        """The clip's pose (nq) and velocity (nv) at time t (a looping clip repeats; an episode
+        on one that does not loop ends at its duration)."""
         return motion.sample_pose(self.clip, t), motion.sample_velocity(self.clip, t)
 
     def phase(self, t):
@@ -215,6 +210,10 @@ class ImitationEnv:
         return {term: jnp.exp(-getattr(s, f"k_{term}") * errors[term])
                 for term in REWARD_TERMS}, angles
 
+    def reward(self, terms):
+        """The DeepMimic reward Σ_i w_i terms_i of the terms of `reward_terms`."""
+        return sum(getattr(self.settings, f"w_{term}") * terms[term] for term in REWARD_TERMS)
+
     def _metrics(self, terms, angles, fell):
         metrics = {f"reward_{term}": terms[term] for term in REWARD_TERMS}
         metrics["pose_error_degrees"] = jnp.degrees(jnp.mean(angles))
@@ -259,7 +258,8 @@ class ImitationEnv:
         """One control step: PD target from the action and the reference at the next control
         time, `substeps` simulation steps, reward against that reference, early termination
         (a non-foot link touched the ground, or a non-finite state, which is replaced by the
-        state before the step and earns no reward)."""
+        state before the step and earns no reward), and truncation at the time limit or, for a
+        clip that does not loop, once that time reaches the clip's duration."""
         world = self.world.replace(gravity=params["gravity"])
         dtype = self.clip.poses.dtype
         t = state.task + (state.steps + 1).astype(dtype) * self.control_dt
@@ -272,7 +272,7 @@ class ImitationEnv:
                                          stepped, state.physics)
         fell = jnp.any(touched & ~self._may_touch) | ~finite
         terms, angles = self.reward_terms(physics.q, physics.qd, q_ref, qd_ref)
-        reward = sum(getattr(self.settings, f"w_{term}") * terms[term] for term in REWARD_TERMS)
-        reward = jnp.where(finite, reward, 0.0)
+        reward = jnp.where(finite, self.reward(terms), 0.0)
+        clip_over = False if self.clip.loop else t >= self.clip.duration
         return end_of_step(state, physics, self._observe(physics, t), reward, fell, state.task,
-                           self._metrics(terms, angles, fell), self.episode_steps)
+                           self._metrics(terms, angles, fell), self.episode_steps, clip_over)

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.env import check_timing, end_of_step, start_of_episode
+from agents.env import TaskTiming, check_timing, end_of_step, start_of_episode
 from jaxsim import kinematics, simulation
 from jaxsim.builder import LinkSpec, build_model
 from jaxsim.characters.common import Y_TO_X
@@ -24,7 +24,7 @@ REWARD_LENGTH = 0.2
 
 
 @dataclass(frozen=True)
-class ReachSettings:
+class ReachSettings(TaskTiming):
     """The `[reach]` config section."""
 
     control_hz: float = 30.0
@@ -57,8 +57,8 @@ class ReachEnv:
         self.settings = settings
         self.model = arm(dtype)
         self.world = make_world(ground=False, dtype=dtype)
-        self.substeps = int(round(settings.sim_hz / settings.control_hz))
-        self.episode_steps = int(round(settings.episode_seconds * settings.control_hz))
+        self.substeps = settings.substeps
+        self.episode_steps = settings.episode_steps
         self.control_dt = 1.0 / settings.control_hz
 
     def default_params(self):
@@ -74,7 +74,9 @@ class ReachEnv:
                                 goal[:2]])
 
     def reset(self, params, key):
-        angle_key, goal_key, radius_key = jax.random.split(key, 3)
+        """A random arm pose and goal; the state keeps a key split off for its own future use,
+        apart from the keys these draws used."""
+        key, angle_key, goal_key, radius_key = jax.random.split(key, 4)
         dtype = self.world.gravity.dtype
         q = jax.random.uniform(angle_key, (2,), dtype, -np.pi, np.pi)
         radius = jax.random.uniform(radius_key, (), dtype, 0.2, 2 * LINK_LENGTH - 0.05)
