@@ -8,7 +8,9 @@ The config file (see configs/search_landscape.toml):
     [box]                         # optional lower/upper bounds of x (default: the unit box)
 
 The run directory holds the resolved config (config.json) and the evaluation log
-(evaluations.jsonl); running the same command again resumes the search from that log.
+(evaluations.jsonl); running the same command again resumes the search from that log. A resumed
+search may be given another search.budget; any other change to the config is refused, since the
+log would then mix the results of two searches (or of two black boxes).
 """
 
 import dataclasses
@@ -22,9 +24,10 @@ from agents import config as config_io
 from jaxsim.atomic import write_text_atomic
 from bds.gp import to_unit
 from bds.landscapes import LandscapeSettings, StrategyLandscape
-from bds.search import SearchSettings, check_bounds, search
+from bds.search import SearchSettings, check_bounds, logged_evaluations, search
 
 BLACK_BOXES = ("landscape",)
+RESUMABLE = ("search.budget",)        # the config keys a resumed search may change
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,11 @@ class SearchConfig:
             if lower.size != self.landscape.dim:
                 raise ValueError(f"[box] has {lower.size} dimensions but landscape.dim is "
                                  f"{self.landscape.dim}")
+        try:
+            self.search.check_feature_dim(self.landscape.feature_dim)
+        except ValueError as error:
+            raise ValueError(f"[search] does not fit landscape.feature_dim = "
+                             f"{self.landscape.feature_dim}: {error}") from None
 
     def bounds(self):
         if self.box.lower:
@@ -72,17 +80,57 @@ def black_box(config: SearchConfig):
     return g, label
 
 
+def _flat(tree, prefix=""):
+    """The nested dict `tree` as {dotted key: value}."""
+    flat = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(_flat(value, f"{prefix}{key}."))
+        else:
+            flat[prefix + key] = value
+    return flat
+
+
+def _check_resumable(out_dir, resolved):
+    """Raise a ConfigError naming the first key, other than those in RESUMABLE, in which the
+    resolved config (as config.json holds it) differs from the run's config.json. A key the
+    stored file lacks (written before that setting existed) is taken to have its default."""
+    path = Path(out_dir) / "config.json"
+    try:
+        stored = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise config_io.ConfigError(f"{out_dir} holds a search log but no config.json, so this "
+                                    "config cannot be checked against the search in it; use "
+                                    "another --out") from None
+    except json.JSONDecodeError as error:
+        raise config_io.ConfigError(f"{path}: not valid JSON ({error.msg})") from None
+    if not isinstance(stored, dict):
+        raise config_io.ConfigError(f"{path}: not a search config (a JSON object)")
+    defaults = _flat(json.loads(json.dumps(dataclasses.asdict(SearchConfig()))))
+    stored = {**defaults, **_flat(stored)}
+    for key, value in _flat(resolved).items():
+        if key not in RESUMABLE and stored.get(key) != value:
+            raise config_io.ConfigError(
+                f"{out_dir} holds a search with {key} = {stored.get(key)!r}, but the config gives "
+                f"{value!r}; a resumed search may change only {', '.join(RESUMABLE)}: use the "
+                "same config or another --out")
+
+
 def run(config_path, out_dir=None, overrides=(), workers=1, echo=print):
     """Load the config, run or resume the search, print progress and a summary; returns the
     SearchResult."""
     config = config_io.load(config_path, SearchConfig, overrides)
     out_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out_dir / "config.json",
-                      json.dumps(dataclasses.asdict(config), indent=2) + "\n")
+    log = out_dir / "evaluations.jsonl"
+    text = json.dumps(dataclasses.asdict(config), indent=2) + "\n"
+    if log.exists():
+        _check_resumable(out_dir, json.loads(text))
+    write_text_atomic(out_dir / "config.json", text)
     g, label = black_box(config)
     settings = config.search
-    seen = set()
+    # Strategies of the evaluations the log already holds, so progress says what is new.
+    seen = {label(record["x"]) for record in logged_evaluations(log)
+            if record["index"] < settings.budget}
 
     def progress(record):
         strategy = label(record["x"])
@@ -93,7 +141,6 @@ def run(config_path, out_dir=None, overrides=(), workers=1, echo=print):
              f"feature ({feature})  strategy {strategy}{' (new)' if new else ''}  "
              f"distinct {len(seen)}")
 
-    log = out_dir / "evaluations.jsonl"
     if log.exists():
         echo(f"resuming from {log}")
     result = search(g, *config.bounds(), settings, log=log, workers=workers, progress=progress)

@@ -40,6 +40,8 @@ class LandscapeSettings:
             raise ValueError(f"large must be between 0 and strategies − 1; got {self.large}")
         if self.noise < 0:
             raise ValueError(f"noise must be non-negative; got {self.noise}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be non-negative; got {self.seed}")
         if self.features not in FEATURE_KINDS:
             raise ValueError(f"features must be one of {', '.join(FEATURE_KINDS)}; got "
                              f"{self.features!r}")

@@ -16,12 +16,15 @@ Persistence: every event is appended to a JSONL log and flushed to disk at once 
 settings, each round's planned points before they are evaluated, and each evaluation the moment it
 returns. `search` on an existing log resumes: finished evaluations are read back, not repeated; a
 round that was planned but not finished evaluates only its missing points; the next decisions are
-computed from the same history. A half-written last line (a crash during a write) is dropped.
+computed from the same history. A half-written last line (a crash during a write) is dropped, and
+a complete last line missing only its newline gets one, before anything more is appended; a log cut
+off before its header was complete holds nothing and starts afresh.
 
 Every random choice comes from the seed and the index of the pick, so the same settings give the
 same search on the same machine.
 """
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -39,9 +42,12 @@ import numpy as np
 
 from bds import acquisition, gp
 from bds.optimize import direct, maximize_lbfgs
+from jaxsim.atomic import write_text_atomic
 
 STRATEGIES = ("bds", "random")
 CAPACITY_STEP = 16              # observation arrays are padded to a multiple of this
+LBFGS_CANDIDATES = 1024         # uniform points the L-BFGS starts of an exploration pick come from
+ROTATION_DIM = 3                # the feature size the "rotation" distance takes (a rotation vector)
 
 
 @dataclass(frozen=True)
@@ -74,6 +80,11 @@ class SearchSettings:
                      "lbfgs_starts", "direct_evaluations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1; got {getattr(self, name)}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be non-negative; got {self.seed}")
+        if self.lbfgs_starts > LBFGS_CANDIDATES:
+            raise ValueError(f"lbfgs_starts must be at most {LBFGS_CANDIDATES} (the candidate "
+                             f"points the starts are chosen from); got {self.lbfgs_starts}")
         if self.explore < 0 or self.diverse < 0 or self.explore + self.diverse == 0:
             raise ValueError("explore and diverse must be non-negative and not both zero")
         if self.strategy == "bds" and self.initial < self.batch:
@@ -85,14 +96,23 @@ class SearchSettings:
             except ValueError as error:
                 raise ValueError(f"feature_low/feature_high: {error}") from None
 
+    def check_feature_dim(self, feature_dim):
+        """Raise a ValueError naming the setting when features of `feature_dim` numbers do not
+        fit these settings: a feature range of another size, or the rotation distance with
+        features that are not rotation vectors."""
+        if self.feature_low and len(self.feature_low) != feature_dim:
+            raise ValueError(f"feature_low/feature_high give {len(self.feature_low)} components, "
+                             f"but the black box returns features of {feature_dim}")
+        if self.distance == "rotation" and feature_dim != ROTATION_DIM:
+            raise ValueError(f"distance 'rotation' compares rotation vectors of {ROTATION_DIM} "
+                             f"numbers, but the black box returns features of {feature_dim}")
+
     def feature_prior(self, feature_dim):
         """The GP's prior mean and least standardising unit, each (feature_dim,), from the
         feature's range; (None, 0.0) when the range is not given."""
+        self.check_feature_dim(feature_dim)
         if not self.feature_low:
             return None, 0.0
-        if len(self.feature_low) != feature_dim:
-            raise ValueError(f"feature_low/feature_high give {len(self.feature_low)} components, "
-                             f"but the black box returns features of {feature_dim}")
         low, high = np.asarray(self.feature_low), np.asarray(self.feature_high)
         return 0.5 * (low + high), 0.25 * (high - low)
 
@@ -148,7 +168,8 @@ def _padded(rows, capacity):
 
 @partial(jax.jit, static_argnames=("dim", "starts"))
 def _explore(posterior, key, dim, starts):
-    return maximize_lbfgs(partial(acquisition.exploration, posterior), dim, key, starts=starts)
+    return maximize_lbfgs(partial(acquisition.exploration, posterior), dim, key, starts=starts,
+                          candidates=LBFGS_CANDIDATES)
 
 
 @partial(jax.jit, static_argnames=("distance",))
@@ -219,6 +240,48 @@ def _as_json(record):
     return json.loads(json.dumps(record))
 
 
+def _line(record):
+    return json.dumps(record) + "\n"
+
+
+_START = '{"event": "start"'                # how _line begins every header
+
+
+def _complete_lines(text):
+    """The lines of a log's text that hold whole records: a last line cut off by a crash (it
+    does not parse) is left out; one that is whole but lacks its newline is kept."""
+    lines = text.split("\n")
+    tail = lines.pop()                        # "" when the text ends with a newline
+    if tail:
+        try:
+            json.loads(tail)
+        except json.JSONDecodeError:
+            pass
+        else:
+            lines.append(tail)
+    return lines
+
+
+def _parse(path, lines):
+    records = []
+    for number, line in enumerate(lines, 1):
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as error:
+            raise ValueError(f"{path}, line {number}: not valid JSON ({error.msg})") from None
+    return records
+
+
+def logged_evaluations(path):
+    """The evaluation records in the search log at `path`, in the order they were written
+    (none when there is no such file)."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    records = _parse(path, _complete_lines(path.read_text(encoding="utf-8")))
+    return [record for record in records if record.get("event") == "evaluation"]
+
+
 class SearchLog:
     """Append-only JSONL record of a search; see the module docstring."""
 
@@ -233,24 +296,13 @@ class SearchLog:
             self._append({"event": "start", **header})
 
     def _read(self):
-        with open(self.path, encoding="utf-8") as f:
-            text = f.read()
-        lines = text.split("\n")
-        if lines and lines[-1] == "":
-            lines.pop()
-        elif lines:                               # a crash during the last write: drop it
-            try:
-                json.loads(lines[-1])
-            except json.JSONDecodeError:
-                lines.pop()
-                self._rewrite(lines)
-        records = []
-        for number, line in enumerate(lines, 1):
-            try:
-                records.append(json.loads(line))
-            except json.JSONDecodeError as error:
-                raise ValueError(f"{self.path}, line {number}: not valid JSON ({error.msg})") \
-                    from None
+        text = self.path.read_text(encoding="utf-8")
+        lines = _complete_lines(text)
+        if not lines and (_START.startswith(text) or text.startswith(_START)):
+            # Empty, or a crash while the header was written: no evaluation to keep.
+            write_text_atomic(self.path, _line({"event": "start", **self.header}))
+            return
+        records = _parse(self.path, lines)
         if not records or records[0].get("event") != "start":
             raise ValueError(f"{self.path}: not a search log (the first line must be the "
                              "search's 'start' record)")
@@ -270,21 +322,16 @@ class SearchLog:
             else:
                 raise ValueError(f"{self.path}, line {number}: unknown event "
                                  f"{record.get('event')!r}")
-
-    def _rewrite(self, lines):
-        tmp = self.path.with_name(self.path.name + ".tmp")
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write("".join(line + "\n" for line in lines))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, self.path)
+        whole = "".join(line + "\n" for line in lines)
+        if whole != text:                         # so the next record starts on a line of its own
+            write_text_atomic(self.path, whole)
 
     def _append(self, record):
         if self.path is None:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.path, "a", encoding="utf-8") as f:
-            f.write(json.dumps(record) + "\n")
+            f.write(_line(record))
             f.flush()
             os.fsync(f.fileno())
 
@@ -318,7 +365,13 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
     `log` is the JSONL file to append to (None: keep nothing). `workers` > 1 evaluates a round's
     points in that many threads at once. `progress(record)` is called after every evaluation
     with its log record (index, kind, x, feature, seconds).
+
+    When g (or a check of its output) raises, or the search is interrupted, the evaluations of
+    the round that did finish are logged, those not yet started are dropped, and the error
+    propagates: a resumed search neither repeats nor loses an evaluation.
     """
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1; got {workers}")
     lower, upper = check_bounds(lower, upper)
     dim = lower.size
     header = _as_json({"lower": lower.tolist(), "upper": upper.tolist(),
@@ -344,7 +397,7 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
             raise ValueError(f"evaluation {record['index']} at x = {record['x']} returned "
                              f"{len(record['feature'])} numbers; earlier evaluations returned "
                              f"{len(earlier['feature'])}")
-        settings.feature_prior(len(record["feature"]))    # a feature range of the wrong size
+        settings.check_feature_dim(len(record["feature"]))
         record_log.add_evaluation(record)
         if progress is not None:
             progress(record)
@@ -353,8 +406,9 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
     with ThreadPoolExecutor(max_workers=workers) as pool:
         while first < settings.budget:
             count = min(settings.batch, settings.budget - first)
-            if first in record_log.plans:
+            if first in record_log.plans:       # perhaps planned under a larger budget
                 points, kinds = record_log.plans[first]
+                points, kinds = points[:count], kinds[:count]
             else:
                 x_unit, features = history()
                 points, kinds = plan_round(settings, first, count, x_unit, features, dim)
@@ -363,8 +417,19 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
             todo = [first + j for j in range(len(points))
                     if first + j not in record_log.evaluations]
             jobs = [pool.submit(evaluate, i, points[i - first], kinds[i - first]) for i in todo]
-            for job in as_completed(jobs):
-                finish(job.result())
+            try:
+                for job in as_completed(jobs):
+                    finish(job.result())
+            except BaseException:
+                pool.shutdown(cancel_futures=True)      # waits for the running evaluations
+                for job in jobs:
+                    if not job.cancelled() and job.exception() is None \
+                            and job.result()["index"] not in record_log.evaluations:
+                        # The first error is the one raised; a record that fails too is
+                        # left for the resumed search to evaluate again.
+                        with contextlib.suppress(Exception):
+                            finish(job.result())
+                raise
             first += len(points)
     done = [record_log.evaluations[i] for i in range(settings.budget)]
     return SearchResult(np.array([r["x"] for r in done]), np.array([r["feature"] for r in done]),

@@ -1,6 +1,8 @@
 """BDS optimisers, the search loop (resume, batching, errors) and `takeoff search`."""
 
+import dataclasses
 import json
+import re
 
 import jax
 import jax.numpy as jnp
@@ -163,6 +165,12 @@ def test_bad_settings_and_bad_black_box_outputs():
         SearchSettings(strategy="grid")
     with pytest.raises(ValueError, match="initial .* must be at least batch"):
         SearchSettings(initial=2, batch=4)
+    with pytest.raises(ValueError, match="seed must be non-negative; got -1"):
+        SearchSettings(seed=-1)
+    with pytest.raises(ValueError, match="lbfgs_starts must be at most 1024 .*; got 1025"):
+        SearchSettings(lbfgs_starts=1025)
+    with pytest.raises(ValueError, match="workers must be at least 1; got 0"):
+        search(lambda x: 0.0, [0], [1], SearchSettings(budget=1), workers=0)
     with pytest.raises(ValueError, match="evaluation 0 at x = .* returned nan"):
         search(lambda x: float("nan"), [0], [1], SearchSettings(budget=2))
     with pytest.raises(ValueError, match="evaluation 1 .* returned 2 numbers; earlier evaluations "
@@ -197,6 +205,99 @@ def test_feature_range_errors_and_a_resumed_search_with_one(tmp_path):
     older.write_text("\n".join([json.dumps(header), *lines[1:]]) + "\n")
     search(lambda x: calls.append(x) or x[0], [0], [1], settings, log=older)
     assert calls == []
+
+
+def crash_at_the_start_of_round_two(fault):
+    """A black box (x[0]) that fails once, at the fifth call, as `fault` says, and the list of
+    the points it evaluated successfully."""
+    evaluated, failed = [], []
+
+    def g(x):
+        if len(evaluated) == 4 and not failed:
+            failed.append(True)
+            if fault == "wrong length":
+                return [0.0, 0.0]
+            raise {"error": RuntimeError, "interrupt": KeyboardInterrupt}[fault]("simulated crash")
+        evaluated.append(tuple(x))
+        return x[0]
+    return g, evaluated
+
+
+@pytest.mark.parametrize("fault, workers, raised, message", [
+    ("error", 1, RuntimeError, "simulated crash"),
+    ("error", 3, RuntimeError, "simulated crash"),
+    ("interrupt", 1, KeyboardInterrupt, "simulated crash"),
+    ("wrong length", 1, ValueError, "returned 2 numbers; earlier evaluations returned 1"),
+])
+def test_a_failure_inside_a_round_keeps_its_finished_evaluations_and_repeats_none(
+        tmp_path, fault, workers, raised, message):
+    log = tmp_path / "search.jsonl"
+    settings = SearchSettings(strategy="random", budget=8, batch=4, seed=4)
+    g, evaluated = crash_at_the_start_of_round_two(fault)
+    with pytest.raises(raised, match=message):
+        search(g, [0, 0], [1, 1], settings, log=log, workers=workers)
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    assert sum(r["event"] == "evaluation" for r in logged) == len(evaluated)
+    result = search(g, [0, 0], [1, 1], settings, log=log, workers=workers)
+    assert len(evaluated) == len(set(evaluated)) == 8      # none twice, none lost
+    assert {tuple(x) for x in result.x} == set(evaluated)
+
+
+def test_a_resumed_search_with_a_smaller_budget_stops_at_it(tmp_path):
+    log = tmp_path / "search.jsonl"
+    settings = SearchSettings(strategy="random", budget=8, batch=4, seed=4)
+    search(lambda x: x[0], [0, 0], [1, 1], settings, log=log)
+    # Keep the second round's plan but none of its evaluations, as a crash at its start would.
+    lines = [line for line in log.read_text().splitlines()
+             if json.loads(line).get("index", 0) < 4]
+    log.write_text("\n".join(lines) + "\n")
+    calls = []
+    result = search(lambda x: calls.append(x) or x[0], [0, 0], [1, 1],
+                    dataclasses.replace(settings, budget=6), log=log)
+    assert len(calls) == 2 and len(result.x) == 6
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [r["index"] for r in logged if r["event"] == "evaluation"] == [0, 1, 2, 3, 4, 5]
+
+
+def test_the_rotation_distance_needs_features_of_three_numbers():
+    settings = SearchSettings(budget=2, initial=2, distance="rotation")
+    with pytest.raises(ValueError, match="distance 'rotation' compares rotation vectors of 3 "
+                                         "numbers, but the black box returns features of 2"):
+        search(lambda x: [x[0], x[1]], [0, 0], [1, 1], settings)
+    search(lambda x: [x[0], x[1], 0.0], [0, 0], [1, 1], settings)
+
+
+def test_a_whole_last_line_without_its_newline_gets_one_before_the_next_record(tmp_path):
+    log = tmp_path / "search.jsonl"
+    settings = SearchSettings(strategy="random", budget=2)
+    search(lambda x: x[0], [0], [1], settings, log=log)
+    log.write_text(log.read_text().rstrip("\n"))
+    calls = []
+    search(lambda x: calls.append(x) or x[0], [0], [1], dataclasses.replace(settings, budget=3),
+           log=log)
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    assert len(calls) == 1
+    assert [r["index"] for r in logged if r["event"] == "evaluation"] == [0, 1, 2]
+
+
+@pytest.mark.parametrize("cut", ["", '{"ev', '{"event": "start", "lower": [0.0], "upp'])
+def test_a_log_cut_off_in_its_header_starts_afresh(tmp_path, cut):
+    log = tmp_path / "search.jsonl"
+    log.write_text(cut)
+    settings = SearchSettings(strategy="random", budget=2)
+    result = search(lambda x: x[0], [0], [1], settings, log=log)
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    assert logged[0]["event"] == "start" and logged[0]["lower"] == [0.0]
+    assert [r["x"] for r in logged if r["event"] == "evaluation"] == result.x.tolist()
+
+
+@pytest.mark.parametrize("text", ["hello", '{"event": "evaluation"}\n', '{"a": 1}\n{"b"'])
+def test_a_file_that_is_not_a_search_log_is_refused_and_left_as_it_was(tmp_path, text):
+    log = tmp_path / "notes.jsonl"
+    log.write_text(text)
+    with pytest.raises(ValueError, match="not a search log"):
+        search(lambda x: x[0], [0], [1], SearchSettings(strategy="random", budget=2), log=log)
+    assert log.read_text() == text
 
 
 def test_a_log_from_other_settings_is_refused(tmp_path):
@@ -267,9 +368,89 @@ large = 1
     ("[search\n", "not valid TOML"),
     ("[landscape]\nfeatures = 'random'\n", "features must be one of spread, positional"),
     ("[search]\nfeature_low = [0]\nfeature_high = [-1]\n", r"\[search\]: feature_low/"),
+    ("[search]\nseed = -1\n", r"\[search\]: seed must be non-negative; got -1"),
+    ("[search]\nlbfgs_starts = 5000\n", r"\[search\]: lbfgs_starts must be at most 1024"),
+    ("[landscape]\nseed = -2\n", r"\[landscape\]: seed must be non-negative; got -2"),
+    ("[search]\nbudget = 2\ninitial = 2\ndistance = 'rotation'\n",
+     r"\[search\] does not fit landscape.feature_dim = 1: distance 'rotation' compares rotation "
+     "vectors of 3 numbers"),
+    ("[search]\nbudget = 2\ninitial = 2\nfeature_low = [0, 0]\nfeature_high = [1, 1]\n",
+     r"landscape.feature_dim = 1: feature_low/feature_high give 2 components"),
 ])
 def test_takeoff_search_config_errors_name_the_key(tmp_path, capsys, text, message):
     config = write_config(tmp_path, text)
     with pytest.raises(SystemExit, match=message) as error:
         main(["search", str(config), "--out", str(tmp_path / "run")])
     assert str(config) in str(error.value)
+
+
+RANDOM_SEARCH = """
+black_box = "landscape"
+[search]
+strategy = "random"
+budget = 4
+[landscape]
+dim = 2
+strategies = 6
+large = 1
+"""
+
+
+@pytest.mark.parametrize("overrides, key, stored, given", [
+    (["landscape.seed=1"], "landscape.seed", "0", "1"),
+    (["search.seed=3", "search.budget=6"], "search.seed", "0", "3"),
+    (["box.lower=[0, 0]", "box.upper=[1, 2]"], "box.lower", r"\[\]", r"\[0.0, 0.0\]"),
+])
+def test_a_resumed_takeoff_search_refuses_another_config_and_keeps_its_own(
+        tmp_path, capsys, overrides, key, stored, given):
+    config = write_config(tmp_path, RANDOM_SEARCH)
+    out_dir = tmp_path / "run"
+    assert run_cli(["search", str(config), "--out", str(out_dir)], capsys)[0] == 0
+    before = (out_dir / "config.json").read_text()
+    log_before = (out_dir / "evaluations.jsonl").read_text()
+    with pytest.raises(SystemExit, match=f"{key} = {stored}, but the config gives {given}; a "
+                                         "resumed search may change only search.budget"):
+        main(["search", str(config), "--out", str(out_dir),
+              *(arg for override in overrides for arg in ("--set", override))])
+    assert (out_dir / "config.json").read_text() == before
+    assert (out_dir / "evaluations.jsonl").read_text() == log_before
+
+
+def test_a_resumed_takeoff_search_checks_its_config_json(tmp_path, capsys):
+    config = write_config(tmp_path, RANDOM_SEARCH)
+    out_dir = tmp_path / "run"
+    assert run_cli(["search", str(config), "--out", str(out_dir)], capsys)[0] == 0
+    # A config.json from before a setting existed: that setting counts as its default.
+    stored = json.loads((out_dir / "config.json").read_text())
+    del stored["landscape"]["features"]
+    (out_dir / "config.json").write_text(json.dumps(stored))
+    code, out, _ = run_cli(["search", str(config), "--out", str(out_dir),
+                            "--set", "search.budget=5"], capsys)
+    assert code == 0 and "[  5/5]" in out
+    (out_dir / "config.json").unlink()
+    with pytest.raises(SystemExit, match="holds a search log but no config.json"):
+        main(["search", str(config), "--out", str(out_dir), "--set", "search.budget=6"])
+
+
+def test_progress_after_a_resume_counts_the_strategies_already_found(tmp_path, capsys):
+    config = write_config(tmp_path, RANDOM_SEARCH)
+    out_dir = tmp_path / "run"
+    code, first, _ = run_cli(["search", str(config), "--out", str(out_dir),
+                              "--set", "search.budget=6"], capsys)
+    assert code == 0
+    code, resumed, _ = run_cli(["search", str(config), "--out", str(out_dir),
+                                "--set", "search.budget=12"], capsys)
+    assert code == 0
+
+    def progress(out):
+        return re.findall(r"strategy (\d+)( \(new\))?  distinct (\d+)", out)
+    lines = progress(first) + progress(resumed)
+    assert len(lines) == 12
+    # Across the two runs, each strategy is new exactly once and the count only grows.
+    seen = set()
+    for strategy, new, distinct in lines:
+        assert bool(new) == (strategy not in seen)
+        seen.add(strategy)
+        assert int(distinct) == len(seen)
+    # The first run found several strategies, so a resumed count that forgot them would differ.
+    assert len({strategy for strategy, _, _ in progress(first)}) > 1
