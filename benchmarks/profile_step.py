@@ -3,7 +3,8 @@ the source line it came from.
 
 Runs the contact benchmark's rollout (`tracking.contact_scene`: the humanoid dropped on the
 ground, maba, contacts and joint limits, 600 Hz, float32) or, with --solve-only, one MABA solve
-as `spd.py` times it, at the given batch; records a `jax.profiler` trace of a few calls and sums each kernel's duration.
+as `spd.py` times it, at the given batch, compiled as `simulate` compiles maba
+(`jaxsim.xla_options`); records a `jax.profiler` trace of a few calls and sums each kernel's duration.
 Kernels are named by XLA (`add_add_fusion.2`, `wrapped_scatter.9`, …); the optimised HLO's
 metadata gives the innermost Python line that produced each one.
 
@@ -22,20 +23,22 @@ from pathlib import Path
 
 import jax
 
-from jaxsim import allocator, characters
+from jaxsim import allocator, characters, xla_options
 from spd import random_inputs, solver, solver_args
 from tracking import batched_states, contact_scene
 
 
 def contact_rollout(batch, steps):
     _, state, rollout = contact_scene(steps)
-    return jax.jit(rollout), (batched_states(state, batch),)
+    return (jax.jit(rollout, compiler_options=xla_options.options_for("maba")),
+            (batched_states(state, batch),))
 
 
 def maba_solve(batch):
     model = characters.humanoid()
     args = solver_args(model, random_inputs(model, batch, 0), "maba")
-    return jax.jit(jax.vmap(solver("maba"), in_axes=(None, 0, 0, 0))), args
+    return jax.jit(jax.vmap(solver("maba"), in_axes=(None, 0, 0, 0)),
+                   compiler_options=xla_options.options_for("maba")), args
 
 
 def source_lines(hlo_text):

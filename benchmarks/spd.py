@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsim import allocator, characters, dynamics, rotations
+from jaxsim import allocator, characters, dynamics, rotations, xla_options
 from jaxsim.atomic import write_text_atomic
 
 CHARACTERS = {
@@ -118,12 +118,15 @@ def solver_args(model, inputs, method):
     return (model, inputs["q"], inputs["qd"], inputs["tau" if method == "aba" else "target"])
 
 
-def compile_and_time(fn, args, repeats):
+def compile_and_time(fn, args, repeats, method):
     """Compile seconds of jit(fn) on `args`, the outputs of one warm-up call, the seconds of
     `repeats` further calls, each ended with `jax.block_until_ready`, and the process's minor page
-    faults per call over those calls (see jaxsim.allocator)."""
+    faults per call over those calls (see jaxsim.allocator). Compiled with the XLA options that
+    `simulation.simulate` uses for `method` (`jaxsim.xla_options.options_for`;
+    TAKEOFF_XLA_DEFAULTS=1 compiles every method with XLA's defaults)."""
     start = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile()
+    compiled = jax.jit(fn, compiler_options=xla_options.options_for(method)).lower(
+        *args).compile()
     compile_s = time.perf_counter() - start
     outputs = jax.block_until_ready(compiled(*args))
     times = []
@@ -140,7 +143,7 @@ def measure(method, args, repeats):
     """Compile seconds, per-call seconds, page faults per call, and whether the outputs of
     jit(vmap(solver)) on `args` are all finite (a solver that returns NaN is not worth timing, so the caller warns)."""
     compile_s, outputs, times, faults = compile_and_time(
-        jax.vmap(solver(method), in_axes=(None, 0, 0, 0)), args, repeats)
+        jax.vmap(solver(method), in_axes=(None, 0, 0, 0)), args, repeats, method)
     finite = all(bool(jnp.isfinite(x).all()) for x in jax.tree.leaves(outputs))
     return compile_s, times, faults, finite
 
@@ -269,6 +272,7 @@ def main(argv=None):
     record = {
         "command": shlex.join([sys.executable, *sys.argv]),
         "machine": machine_info(),
+        "compiler_options": {m: xla_options.options_for(m) for m in METHODS},
         "settings": {"dt": DT, "seed": args.seed, "angle_std": ANGLE_STD,
                      "velocity_std": VELOCITY_STD, "torque_std": TORQUE_STD},
         "results": rows,

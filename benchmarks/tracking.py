@@ -19,6 +19,10 @@ Subcommands (each prints a markdown table and writes JSON to benchmarks/results/
   filmstrip  The humanoid tracking the cartwheel clip, drawn as a filmstrip PNG.
   plot       Redraw the stability plots from the last stability JSON.
 
+Every rollout is compiled as `simulation.simulate` compiles it: `maba` (and the ABA references)
+with the XLA options of `jaxsim.xla_options`, `dense` and `sparse` with XLA's defaults. Set
+TAKEOFF_XLA_DEFAULTS=1 to compile everything with XLA's defaults.
+
 Run:  python benchmarks/tracking.py stability
       python benchmarks/tracking.py speed --batch 1 --methods dense sparse maba
       python benchmarks/tracking.py contacts --batch 1 256 4096 --mujoco
@@ -41,7 +45,8 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)      # float64 runs; every model/world is cast explicitly
 
-from jaxsim import allocator, characters, kinematics, motion, simulation, tracking  # noqa: E402
+from jaxsim import (allocator, characters, kinematics, motion, simulation, tracking,  # noqa: E402
+                    xla_options)
 from jaxsim.model import rest_pose  # noqa: E402
 from jaxsim.world import make_world  # noqa: E402
 from jaxsim.atomic import write_text_atomic  # noqa: E402
@@ -188,9 +193,10 @@ def batched_states(state, batch):
         "batch")))
 
 
-def _timed(fn, args, repeats):
-    """Compile seconds and the median of `repeats` run times of jit(fn)(*args)."""
-    compile_s, _, times, _ = compile_and_time(fn, args, repeats)
+def _timed(fn, args, repeats, method):
+    """Compile seconds and the median of `repeats` run times of jit(fn)(*args), compiled as
+    `simulation.simulate` compiles `method` (see `jaxsim.xla_options`)."""
+    compile_s, _, times, _ = compile_and_time(fn, args, repeats, method)
     return compile_s, statistics.median(times)
 
 
@@ -219,14 +225,15 @@ def speed(args):
 
         for batch in args.batch:
             states = batched_states(tracking.initial_state(model, world, clip), batch)
+            # The two references are compiled as the tree methods are (XLA options and all).
             _, aba_s = _timed(functools.partial(rollout, model=passive, method="pd"),
-                              (states, poses, velocities), args.repeats)
-            _, other_s = _timed(without_solve, (states,), args.repeats)
+                              (states, poses, velocities), args.repeats, "pd")
+            _, other_s = _timed(without_solve, (states,), args.repeats, "maba")
             for method in args.methods:
                 if batch > 1 and method == "sparse" and not args.sparse_batched:
                     continue
                 compile_s, run_s = _timed(functools.partial(rollout, model=model, method=method),
-                                          (states, poses, velocities), args.repeats)
+                                          (states, poses, velocities), args.repeats, method)
                 rows.append({"row": row, "dof": model.nv, "dt": dt, "batch": batch,
                              "method": method, "steps": args.steps, "compile_s": compile_s,
                              "seconds": run_s, "steps_per_s": batch * args.steps / run_s,
@@ -327,7 +334,7 @@ def contacts(args):
     rows = []
     for batch in args.batch:
         states = batched_states(state, batch)
-        compile_s, run_s = _timed(rollout, (states,), args.repeats)
+        compile_s, run_s = _timed(rollout, (states,), args.repeats, "maba")
         rows.append({"engine": "takeoff maba", "batch": batch, "devices": jax.device_count(),
                      "steps": args.steps, "compile_s": compile_s,
                      "seconds": run_s, "steps_per_s": batch * args.steps / run_s})
@@ -409,6 +416,8 @@ def main(argv=None):
                    "filmstrip": filmstrip}[args.experiment](args)
     print(table)
     record = {"command": shlex.join([sys.executable, *sys.argv]), "machine": machine_info(),
+              "compiler_options": {m: xla_options.options_for(m) for m in ("dense", "sparse",
+                                                                            "maba")},
               "results": rows}
     path = RESULTS / f"tracking_{args.experiment}.json"
     write_text_atomic(path, json.dumps(record, indent=2) + "\n")

@@ -10,7 +10,7 @@ before paying for that import.
 import importlib
 
 _SUBMODULES = ("characters", "contact", "dynamics", "kinematics", "limits", "motion", "rotations",
-               "simulation", "spatial", "tracking", "world")
+               "simulation", "spatial", "tracking", "world", "xla_options")
 _NAMES = {"LinkSpec": "builder", "build_model": "builder", "to_mjcf": "mjcf", "Model": "model",
           "ModelError": "model", "State": "model", "Topology": "model", "rest_pose": "model"}
 

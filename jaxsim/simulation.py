@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsim import contact, kinematics, limits
+from jaxsim import contact, kinematics, limits, xla_options
 from jaxsim.dynamics import aba, solve_spd
 from jaxsim.model import Model, State, check_layout
 from jaxsim.world import World
@@ -95,14 +95,15 @@ def step(model: Model, world: World, state: State, target, dt, method: str = "ma
     return State(kinematics.integrate(model, q, qd_next, dt), qd_next, stretch, touching)
 
 
-@functools.partial(jax.jit, static_argnames=("method", "substeps"))
+@functools.partial(xla_options.jit, static_argnames=("method", "substeps"))
 def simulate(model: Model, world: World, state: State, targets, dt, method: str = "maba",
              substeps: int = 1, target_velocities=None):
     """Run len(targets) control steps, each holding its target pose (and target velocity, if
     `target_velocities` (T, nv) is given) for `substeps` steps of dt.
 
     Returns (final state, the states after each control step), the latter with a leading time
-    axis. A `lax.scan` over control steps around a `lax.scan` over substeps.
+    axis. A `lax.scan` over control steps around a `lax.scan` over substeps. Called at the top
+    level with a tree method (maba, pd), it compiles with `jaxsim.xla_options`.
     """
     check_layout(model, "targets", targets, "nq", leading="T")
     if target_velocities is not None:
@@ -117,7 +118,7 @@ def simulate(model: Model, world: World, state: State, targets, dt, method: str 
     return jax.lax.scan(control_step, state, (targets, target_velocities))
 
 
-@functools.partial(jax.jit, static_argnames=("method", "substeps"))
+@functools.partial(xla_options.jit, static_argnames=("method", "substeps"))
 def simulate_batch(model: Model, world: World, states: State, targets, dt, method: str = "maba",
                    substeps: int = 1, target_velocities=None):
     """`simulate` for a batch of characters: states with a leading batch axis, targets

@@ -1,0 +1,91 @@
+"""XLA compiler options under which the simulator's compiled programs run faster on CPU.
+
+The step is a long chain of small fused loops over arrays whose minor axes are 3 and 6
+(docs/benchmarks.md, "Where the step's time goes"). Two of XLA's CPU code generators handle
+them worse than the older ones they replace:
+
+- `xla_cpu_use_fusion_emitters`: XLA's newer fusion emitters. With the older loop emitters the
+  humanoid's contact step at batch 4096 runs about 1.2× faster, and compiles faster.
+- `xla_cpu_experimental_ynn_fusion_type`: which fusions XLA hands to the YNNPACK library. By
+  default that includes elementwise fusions, which here are small and slower there; we keep
+  only matrix products (`LIBRARY_FUSION_TYPE_DOT`).
+
+The figures, and the command that measures them, are in docs/benchmarks.md ("XLA's CPU
+code generators"). The options change how loops are compiled, not which operations run; fast-math
+stays off, and in float64 a contact rollout agrees with XLA's defaults to 1e-9
+(tests/test_xla_options.py).
+
+They are not a global default. They help the O(n) tree methods (`maba`, and ABA under `pd`);
+`dense` and `sparse`, built on matrix products and factorisations, run about 10% slower under
+them at batch 4096. The PPO update, large matrix products and elementwise work on big parameter
+arrays, is about a third slower, and a training iteration that compiles rollout and update into
+one program comes out even. So `simulation.simulate` and `simulate_batch` use them for the tree
+methods only, and a caller can pass `simulation_options()` to its own
+`jax.jit(..., compiler_options=...)` when its program is mostly simulation by a tree method.
+Inside an outer `jit` the outer program's options apply.
+
+Set `TAKEOFF_XLA_DEFAULTS=1` in the environment to compile with XLA's defaults instead, for
+comparison. On other backends, and with a jaxlib that does not know the options, they are not
+used.
+"""
+
+import functools
+import inspect
+import os
+import warnings
+
+import jax
+import jax.numpy as jnp
+
+SIMULATION_CPU_OPTIONS = {
+    "xla_cpu_use_fusion_emitters": False,
+    "xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_DOT",
+}
+OPT_OUT_VARIABLE = "TAKEOFF_XLA_DEFAULTS"
+# The methods that solve by the tree passes of ABA: MABA, explicit PD followed by ABA, and ABA.
+TUNED_METHODS = ("maba", "pd", "aba")
+
+
+@functools.cache
+def simulation_options() -> dict:
+    """The compiler options for a program that is mostly simulation: `SIMULATION_CPU_OPTIONS`
+    on the CPU backend when this jaxlib accepts them, otherwise (or when the environment sets
+    TAKEOFF_XLA_DEFAULTS=1) none. Decided once per process."""
+    if os.environ.get(OPT_OUT_VARIABLE, "") not in ("", "0") or jax.default_backend() != "cpu":
+        return {}
+    try:
+        jax.jit(jnp.sin, compiler_options=SIMULATION_CPU_OPTIONS).lower(
+            jnp.zeros(2)).compile()
+    except Exception as error:              # an unknown option is a runtime error from XLA
+        warnings.warn(f"this jaxlib rejects the simulator's XLA options ({error}); "
+                      "compiling with XLA's defaults", stacklevel=2)
+        return {}
+    return dict(SIMULATION_CPU_OPTIONS)
+
+
+def options_for(method: str) -> dict:
+    """`simulation_options()` for a method in `TUNED_METHODS`, otherwise none."""
+    return simulation_options() if method in TUNED_METHODS else {}
+
+
+def jit(fun, **jit_kwargs):
+    """`jax.jit(fun, **jit_kwargs)` for a function with a `method` argument: compiled with
+    `simulation_options()` when called at the top level with a method in `TUNED_METHODS`.
+    Called inside another transformation (its arguments are tracers) it is the plain `jax.jit`,
+    as JAX accepts compiler options only on the program it compiles. The options are looked up
+    at the first call, not at import, so that importing the simulator starts no backend."""
+    signature = inspect.signature(fun)
+    plain = jax.jit(fun, **jit_kwargs)
+
+    @functools.cache
+    def tuned():
+        return jax.jit(fun, compiler_options=simulation_options(), **jit_kwargs)
+
+    @functools.wraps(fun)
+    def call(*args, **kwargs):
+        bound = signature.bind(*args, **kwargs)
+        bound.apply_defaults()
+        traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((args, kwargs)))
+        use_options = not traced and bound.arguments["method"] in TUNED_METHODS
+        return (tuned() if use_options else plain)(*args, **kwargs)
+    return call

@@ -1,0 +1,85 @@
+"""The simulator's XLA compiler options: they leave the results alone, they stay out of nested
+programs, and they can be refused."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsim import characters, rest_pose, simulation, xla_options
+from jaxsim.tracking import tracking_model
+from jaxsim.world import make_world
+
+DT = 1 / 600
+
+
+def humanoid_drop(steps):
+    """Two humanoids dropped from 5 and 7 cm onto the ground (contacts, joint limits, maba):
+    model, world, the batched initial states and the targets."""
+    model = tracking_model(characters.humanoid().astype(jnp.float64), root_gains=(0.0, 0.0))
+    world = make_world(dtype=jnp.float64)
+    low, _ = characters.vertical_extent(model)
+    q0 = rest_pose(model, -low + 0.05)
+    states = [simulation.init_state(model, world, q0.at[1].add(lift)) for lift in (0.0, 0.02)]
+    return model, world, jax.tree.map(lambda *x: jnp.stack(x), *states), jnp.tile(q0, (steps, 1))
+
+
+def test_the_options_leave_a_contact_rollout_unchanged():
+    options = xla_options.simulation_options()
+    if jax.default_backend() == "cpu":
+        # The comparison means something only where the options are in use. The jaxlib that
+        # CI installs accepts them; one that drops them should fail here, not go unnoticed.
+        assert options == xla_options.SIMULATION_CPU_OPTIONS
+    model, world, states, targets = humanoid_drop(120)
+
+    def final_q(states):       # simulate inside this jit: the outer program's options apply
+        return jax.vmap(lambda s: simulation.simulate(model, world, s, targets, DT)[0].q)(states)
+    default = jax.jit(final_q)(states)
+    tuned = jax.jit(final_q, compiler_options=options)(states)
+    assert bool(jnp.all(jnp.isfinite(default)))
+    np.testing.assert_allclose(np.asarray(tuned), np.asarray(default), rtol=0, atol=1e-9)
+
+
+def test_simulate_takes_the_options_only_as_the_top_level_program():
+    model, world, states, targets = humanoid_drop(3)
+    batch = simulation.simulate_batch(model, world, states, jnp.stack([targets, targets]), DT)[0]
+    # Inside vmap and jit the arguments are tracers; JAX refuses compiler options there.
+    nested = jax.jit(jax.vmap(lambda s: simulation.simulate(model, world, s, targets, DT)[0]))
+    np.testing.assert_allclose(np.asarray(nested(states).q), np.asarray(batch.q), atol=1e-12)
+
+
+def test_tree_methods_compile_with_the_options_and_the_others_without():
+    seen = []
+    real_jit = jax.jit
+
+    def spy(fun, **kwargs):
+        seen.append(kwargs.get("compiler_options"))
+        return real_jit(fun, **kwargs)
+
+    def scaled(x, method="maba"):
+        return 2 * x
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(jax, "jit", spy)
+        double = xla_options.jit(scaled, static_argnames=("method",))
+        assert seen == [None]              # the plain jit; the tuned one waits for a first call
+        assert float(double(jnp.float64(1.5), method="dense")) == 3.0
+        assert seen == [None]
+        assert float(double(jnp.float64(1.5))) == 3.0
+    assert seen == [None, xla_options.simulation_options()]
+    assert xla_options.options_for("sparse") == {}
+    assert xla_options.options_for("maba") == xla_options.simulation_options()
+
+
+def test_the_environment_can_ask_for_xla_defaults(monkeypatch):
+    monkeypatch.setenv(xla_options.OPT_OUT_VARIABLE, "1")
+    assert xla_options.simulation_options.__wrapped__() == {}
+
+
+def test_options_this_jaxlib_refuses_are_dropped_with_a_warning(monkeypatch):
+    monkeypatch.setattr(xla_options, "SIMULATION_CPU_OPTIONS",
+                        {"xla_cpu_no_such_option_for_takeoff": True})
+    if jax.default_backend() != "cpu":
+        pytest.skip("the options are only tried on the CPU backend")
+    with pytest.warns(UserWarning, match="rejects the simulator's XLA options"):
+        assert xla_options.simulation_options.__wrapped__() == {}
