@@ -4,7 +4,8 @@ the source line it came from.
 Runs the contact benchmark's rollout (`tracking.contact_scene`: the humanoid dropped on the
 ground, maba, contacts and joint limits, 600 Hz, float32) or, with --solve-only, one MABA solve
 as `spd.py` times it, at the given batch, compiled as `simulate` compiles maba
-(`jaxsim.xla_options`); records a `jax.profiler` trace of a few calls and sums each kernel's duration.
+(`jaxsim.xla_options`); records a `jax.profiler` trace of a few calls and sums each kernel's
+duration.
 Kernels are named by XLA (`add_add_fusion.2`, `wrapped_scatter.9`, …); the optimised HLO's
 metadata gives the innermost Python line that produced each one.
 

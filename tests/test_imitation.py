@@ -192,6 +192,10 @@ def test_zero_residual_starts_with_a_high_reward(env, batched, starts):
         for term in REWARD_TERMS:
             value = np.asarray(state.metrics[f"reward_{term}"])
             assert np.all((value >= 0) & (value <= 1)), term
+        # The step's reward is the weighting of the terms it reports (checked on its own with
+        # known numbers in test_reward_terms_against_known_errors).
+        terms = {term: state.metrics[f"reward_{term}"] for term in REWARD_TERMS}
+        np.testing.assert_allclose(state.reward, env.reward(terms), rtol=1e-12)
         state = step(params, state, zeros(env))
 
 

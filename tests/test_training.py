@@ -275,3 +275,9 @@ def test_a_checkpoint_that_does_not_fit_names_the_leaf(tmp_path):
                                               r"\['Dense_0'\]\['bias'\] is float32\[16\] in "
                                               r"the file but this run's config needs float32\[8\]"):
         trainer_lib.load_checkpoint(other.init(), tmp_path / "run")
+
+
+def test_a_torn_run_config_is_a_config_error_naming_the_file(tmp_path):
+    (tmp_path / "config.json").write_text('{"run": {"task": ')
+    with pytest.raises(ConfigError, match="config.json: not a readable run config"):
+        train_commands.load_run_config(tmp_path)
