@@ -146,6 +146,14 @@ def _positive_int(text):
     return value
 
 
+def _gif_path(text):
+    """An argparse type: a path ending in .gif, the only animation format `render` writes."""
+    if not text.lower().endswith(".gif"):
+        raise argparse.ArgumentTypeError(f"the animation is written as a GIF; got {text!r}, "
+                                         "use a name ending in .gif")
+    return text
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="takeoff", description="Batched, differentiable character simulation in JAX.")
@@ -193,7 +201,8 @@ def build_parser():
     p.add_argument("run_dir", help="a run directory from takeoff train")
     p.add_argument("--episodes", type=_positive_int, default=8,
                    help="how many episodes to run (default 8)")
-    p.add_argument("--render", metavar="OUT.gif", help="also write an animation of episode 0")
+    p.add_argument("--render", metavar="OUT.gif", type=_gif_path,
+                   help="also write an animation of episode 0")
     p.add_argument("--data-dir", help="reference data directory (default: $TAKEOFF_DATA)")
     p.set_defaults(run=_cmd_eval)
     p = sub.add_parser("plot", help="draw a run's learning curve (learning_curve.png)")

@@ -95,11 +95,19 @@ def jit(fun, **jit_kwargs):
     def tuned():
         return jax.jit(fun, compiler_options=simulation_options(), **jit_kwargs)
 
-    @functools.wraps(fun)
-    def call(*args, **kwargs):
+    def chosen(args, kwargs):
         bound = signature.bind(*args, **kwargs)
         bound.apply_defaults()
         use_options = (bound.arguments["method"] in TUNED_METHODS
                        and _at_top_level(args, kwargs))
-        return (tuned() if use_options else plain)(*args, **kwargs)
+        return tuned() if use_options else plain
+
+    @functools.wraps(fun)
+    def call(*args, **kwargs):
+        return chosen(args, kwargs)(*args, **kwargs)
+
+    def lower(*args, **kwargs):
+        """Ahead-of-time lowering, as `jax.jit(...).lower`, with the same choice of options."""
+        return chosen(args, kwargs).lower(*args, **kwargs)
+    call.lower = lower
     return call

@@ -99,6 +99,12 @@ def test_eval_needs_at_least_one_episode(tmp_path, capsys):
     assert "--episodes: must be a whole number ≥ 1; got '0'" in err
 
 
+def test_eval_renders_only_to_a_gif(tmp_path, capsys):
+    code, _, err = run(["eval", str(tmp_path), "--render", "out.mp4"], capsys)
+    assert code == 2
+    assert "--render: the animation is written as a GIF; got 'out.mp4'" in err
+
+
 @pytest.mark.parametrize("command, module, function", [
     (["train", "run.toml"], "train_commands", "train"),
     (["eval", "run"], "train_commands", "evaluate"),

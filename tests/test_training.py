@@ -251,7 +251,13 @@ def test_reach_reset_keeps_a_key_it_did_not_draw_with():
     env = ReachEnv()
     key = jax.random.PRNGKey(7)
     state = env.reset(env.default_params(), key)
-    assert not np.array_equal(np.asarray(state.key), np.asarray(key))
+    kept = np.asarray(state.key)
+    assert not np.array_equal(kept, np.asarray(key))
+    # Nor is it, or a first split of it, any key that a split of the reset key can give.
+    for n in range(2, 6):
+        for drawn in np.asarray(jax.random.split(key, n))[1:]:
+            assert not np.array_equal(kept, drawn)
+            assert not np.array_equal(np.asarray(jax.random.split(state.key, 2)[0]), drawn)
 
 
 def test_train_needs_a_config_or_a_run_to_resume(tmp_path):

@@ -74,6 +74,7 @@ def test_tree_methods_compile_with_the_options_and_the_others_without():
         assert seen == [None]
         assert float(double(jnp.float64(1.5))) == 3.0
     assert seen == [None, options]
+    assert float(double.lower(jnp.float64(2.0)).compile()(jnp.float64(2.0))) == 4.0
     assert xla_options.options_for("sparse") == {}
     assert xla_options.options_for("maba") == options
 
