@@ -12,6 +12,7 @@ new run from a config goes.
 """
 
 import dataclasses
+import json
 import math
 import tomllib
 import typing
@@ -42,6 +43,19 @@ def run_directory(config_path, out_dir, holds_run, advice) -> Path:
     if holds_run(run_dir):
         raise ConfigError(f"{run_dir} already holds a run; {advice.format(run_dir=run_dir)}")
     return run_dir
+
+
+def read_stored(path) -> dict:
+    """The config a run directory stored as JSON (its config.json); a ConfigError naming the file
+    when it cannot be read as a JSON object (a torn write, another kind of file)."""
+    path = Path(path)
+    try:
+        stored = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ConfigError(f"{path}: not a readable run config ({error})") from None
+    if not isinstance(stored, dict):
+        raise ConfigError(f"{path}: not a readable run config (not a JSON object)")
+    return stored
 
 
 def load(path, schema, overrides=()):

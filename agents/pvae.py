@@ -286,7 +286,7 @@ def load_decoder(run_dir, model: Model) -> PoseDecoder:
     for name in (WEIGHTS_FILE, NORMALISATION_FILE, "config.json"):
         if not (run_dir / name).exists():
             raise CheckpointError(f"{run_dir / name}: missing; {what}")
-    config = config_io.build(PVAEConfig, json.loads((run_dir / "config.json").read_text()),
+    config = config_io.build(PVAEConfig, config_io.read_stored(run_dir / "config.json"),
                              str(run_dir / "config.json"))
     target_size = pose_features.PoseLayout.of(model).target_size
     network = network_of(config, target_size)

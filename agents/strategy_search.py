@@ -96,16 +96,11 @@ def _check_resumable(out_dir, resolved):
     resolved config (as config.json holds it) differs from the run's config.json. A key the
     stored file lacks (written before that setting existed) is taken to have its default."""
     path = Path(out_dir) / "config.json"
-    try:
-        stored = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
+    if not path.exists():
         raise config_io.ConfigError(f"{out_dir} holds a search log but no config.json, so this "
                                     "config cannot be checked against the search in it; use "
-                                    "another --out") from None
-    except json.JSONDecodeError as error:
-        raise config_io.ConfigError(f"{path}: not valid JSON ({error.msg})") from None
-    if not isinstance(stored, dict):
-        raise config_io.ConfigError(f"{path}: not a search config (a JSON object)")
+                                    "another --out")
+    stored = config_io.read_stored(path)
     defaults = _flat(json.loads(json.dumps(dataclasses.asdict(SearchConfig()))))
     stored = {**defaults, **_flat(stored)}
     for key, value in _flat(resolved).items():

@@ -87,11 +87,7 @@ def load_run_config(run_dir) -> TrainConfig:
     path = Path(run_dir) / CONFIG
     if not path.exists():
         raise config_io.ConfigError(f"{path}: missing; is {run_dir} a training run directory?")
-    try:
-        stored = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise config_io.ConfigError(f"{path}: not a readable run config ({error})") from None
-    return config_io.build(TrainConfig, stored, str(path))
+    return config_io.build(TrainConfig, config_io.read_stored(path), str(path))
 
 
 def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=None,
