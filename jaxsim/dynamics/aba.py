@@ -32,8 +32,8 @@ unactuated root and SPD gains for "hand-of-God" tracking.
 import jax.numpy as jnp
 
 from jaxsim import spatial
-from jaxsim.dynamics.common import (bias_forces, external_forces, gravity_vector, inv3,
-                                    outward_pass)
+from jaxsim.dynamics.common import (bias_forces, cholesky_solve, external_forces,
+                                    gravity_vector, inv3, outward_pass)
 from jaxsim.model import Model
 from jaxsim.spatial import mat_mat, mat_vec
 from jaxsim.tree import gather_slots, pad_links, scan_inward, scan_outward, scatter_slots
@@ -72,7 +72,7 @@ def articulated_body_solve(model: Model, q, qd, joint_force, damping, f_ext=None
         (links["e"], links["r"], s, c, slot_force, slot_damping))
 
     if topo.floating:
-        a_root = jnp.linalg.solve(ia_root + jnp.diag(damping[:6]), joint_force[:6] - pa_root)
+        a_root = cholesky_solve(ia_root + jnp.diag(damping[:6]), joint_force[:6] - pa_root)
     else:
         a_root = jnp.zeros(6, q.dtype)
 

@@ -29,6 +29,28 @@ def inv3(m):
     return cols / det[..., None, None]
 
 
+def cholesky_solve(a, b):
+    """x = a⁻¹ b for small symmetric positive-definite matrices a (…, n, n) and vectors b (…, n),
+    by a Cholesky factorisation a = L Lᵀ written out entry by entry (n is static and small).
+
+    `jnp.linalg.solve` calls LAPACK per matrix, which neither fuses with the work around it nor
+    runs along a batch held innermost (`jaxsim.batch_last`); these elementwise operations do both.
+    """
+    n = a.shape[-1]
+    low = {}
+    for j in range(n):
+        low[j, j] = jnp.sqrt(a[..., j, j] - sum(low[j, k] ** 2 for k in range(j)))
+        for i in range(j + 1, n):
+            low[i, j] = (a[..., i, j] - sum(low[i, k] * low[j, k] for k in range(j))) / low[j, j]
+    y = []
+    for i in range(n):                                             # L y = b
+        y.append((b[..., i] - sum(low[i, k] * y[k] for k in range(i))) / low[i, i])
+    x = [None] * n
+    for i in reversed(range(n)):                                   # Lᵀ x = y
+        x[i] = (y[i] - sum(low[k, i] * x[k] for k in range(i + 1, n))) / low[i, i]
+    return jnp.stack(x, -1)
+
+
 def outward_pass(model: Model, q, qd, gravity, qdd=None):
     """Pass 1 of RNEA/ABA: body-frame velocity v_i, gravity g_i in link coordinates and, when
     `qdd` is given, acceleration a_i = X_i a_λ(i) + S_i q̈_i + v_i × S_i q̇_i (RBDA eq. 5.7–5.9).

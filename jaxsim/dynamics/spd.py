@@ -24,6 +24,7 @@ from jaxsim.dynamics.crba import mass_matrix
 from jaxsim.dynamics.ltdl import ltdl_factor, ltdl_solve
 from jaxsim.dynamics.rnea import bias_torques
 from jaxsim.model import Model, check_layout
+from jaxsim.spatial import mat_vec, transpose
 
 METHODS = ("dense", "sparse", "maba", "pd")
 
@@ -47,7 +48,7 @@ def pose_error(model: Model, q, target):
     if topo.floating:
         rot = rotations.quat_to_matrix(rotations.quat_normalize(q[3:7]))
         err = err.at[0:3].set(rotations.relative_rotvec(target[3:7], q[3:7]))
-        err = err.at[3:6].set(rot.T @ (q[0:3] - target[0:3]))
+        err = err.at[3:6].set(mat_vec(transpose(rot), q[0:3] - target[0:3]))
     return err
 
 
