@@ -1,0 +1,155 @@
+"""`jaxsim.batch_last.vmap` against `jax.vmap`: the same numbers from every rule, the simulator's
+step included, its gradients too, and clear errors."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsim import batch_last, characters, rest_pose, simulation
+from jaxsim.dynamics.common import cholesky_solve
+from jaxsim.tracking import tracking_model
+from jaxsim.world import make_world
+
+RNG = np.random.default_rng(0)
+BATCH = 5
+
+
+def batched(*shape):
+    return jnp.asarray(RNG.normal(size=(BATCH,) + shape))
+
+
+def assert_same(fun, *args, in_axes=0, tol=0.0):
+    expected = jax.vmap(fun, in_axes=in_axes)(*args)
+    got = batch_last.vmap(fun, in_axes=in_axes)(*args)
+    jax.tree.map(lambda e, g: np.testing.assert_allclose(np.asarray(g), np.asarray(e), rtol=tol,
+                                                         atol=tol), expected, got)
+    assert jax.tree.structure(expected) == jax.tree.structure(got)
+
+
+CONSTANT = jnp.asarray(RNG.normal(size=(3, 4)))
+
+
+FALLS_BACK = "falls back"        # cases that go through jax.vmap on purpose
+
+
+@pytest.fixture
+def fallbacks(monkeypatch):
+    """The primitives that `batch_last` evaluated through `jax.vmap` (no rule of its own)."""
+    seen = []
+    real_fallback = batch_last._Evaluator.fallback
+
+    def counting(self, eqn, values, flags):
+        seen.append(eqn.primitive.name)
+        return real_fallback(self, eqn, values, flags)
+    monkeypatch.setattr(batch_last._Evaluator, "fallback", counting)
+    return seen
+
+
+@pytest.mark.parametrize("fun, expect", [
+    (lambda x: jnp.sin(x) * CONSTANT + 2.0, None),                    # elementwise, constants
+    (lambda x: jnp.clip(x, -0.5, CONSTANT), None),                    # clamp, select
+    (lambda x: jnp.where(x > 0, x, CONSTANT), None),
+    (lambda x: x[..., None] * jnp.ones(5), None),                     # broadcast_in_dim
+    (lambda x: x.reshape(2, 6).T[1:, ::2], None),                     # reshape, transpose, slice
+    (lambda x: jnp.concatenate([x, CONSTANT, x[:1]], 0), None),
+    (lambda x: jnp.stack([x, CONSTANT], -1), None),
+    (lambda x: jnp.pad(x, ((1, 0), (2, 1))), None),
+    (lambda x: (x.sum(0), x.max(1), jnp.argmax(x, 1), jnp.cumsum(x, 1)), None),
+    (lambda x: x[jnp.array([2, 0, 0])][:, jnp.array([3, 1])], None),  # gather
+    (lambda x: CONSTANT.at[jnp.array([1, 2])].set(x[:2]), None),      # scatter into a constant
+    (lambda x: x.at[:, jnp.array([0, 0, 3])].add(1.0), None),         # scatter-add
+    (lambda x: jax.lax.dynamic_slice(x, (1, 2), (2, 2)), None),
+    (lambda x: jax.lax.dynamic_update_slice(CONSTANT, x[:1, :2], (2, 1)), None),
+    (lambda x: jax.jit(lambda y: jnp.exp(y).sum())(x), None),         # nested jit
+    (lambda x: (x @ CONSTANT.T, CONSTANT.T @ x, x @ x.T, x[0] @ x[1]), None),   # small dots
+    (lambda x: jnp.einsum("ij,kj->ik", x, CONSTANT), None),
+    (lambda x: jnp.einsum("ijk,ikl->ijl", x.reshape(2, 2, 3), x.reshape(2, 3, 2)), None),
+    (lambda x: x.ravel() @ jnp.ones((12, 70)) @ jnp.ones((70, 2)), FALLS_BACK),  # large dot
+    (lambda x: jnp.linalg.solve(x[:, :3] + 4 * jnp.eye(3), x[:, 3]), FALLS_BACK),   # LAPACK
+])
+def test_each_rule_matches_vmap(fun, expect, fallbacks):
+    assert_same(fun, batched(3, 4), tol=1e-13)   # dots may sum in another order
+    assert bool(fallbacks) == (expect == FALLS_BACK), fallbacks
+
+
+def test_a_scan_whose_carry_becomes_batched_and_unbatched_inputs(fallbacks):
+    def fun(x, shared):
+        def body(carry, row):
+            total, count = carry                  # total starts unbatched, becomes batched
+            return (total * 0.5 + row, count + 1), total.sum()
+        return jax.lax.scan(body, (jnp.zeros(4), 0), x * shared)
+    assert_same(fun, batched(6, 4), jnp.asarray(RNG.normal(size=4)), in_axes=(0, None))
+    assert fallbacks == []
+
+
+@pytest.mark.parametrize("index_batched", [False, True])
+def test_cond_with_a_shared_or_a_per_example_predicate(index_batched, fallbacks):
+    def fun(x, flag):
+        return jax.lax.cond(flag > 0, lambda: (x * 2.0, 1.0), lambda: (-x, x.sum()))
+    flags = jnp.asarray([1.0, -1.0, 1.0, -1.0, 1.0]) if index_batched else jnp.asarray(1.0)
+    assert_same(fun, batched(3), flags, in_axes=(0, 0 if index_batched else None))
+    assert fallbacks == []
+
+
+def test_unbatched_outputs_are_repeated_along_the_batch():
+    assert_same(lambda x, c: (x + 1, c * 2), batched(2), jnp.ones(3), in_axes=(0, None))
+
+
+def test_cholesky_solve_matches_lapack():
+    a = RNG.normal(size=(4, 6, 6))
+    spd = jnp.asarray(a @ np.swapaxes(a, -1, -2) + 0.5 * np.eye(6))
+    b = jnp.asarray(RNG.normal(size=(4, 6)))
+    np.testing.assert_allclose(np.asarray(cholesky_solve(spd, b)),
+                               np.asarray(jnp.linalg.solve(spd, b[..., None])[..., 0]),
+                               rtol=1e-11, atol=1e-11)
+
+
+def humanoid_drop(steps, batch=4):
+    """Humanoids with different heights, joint angles and velocities dropped onto the ground:
+    contacts, joint limits, maba, 600 Hz, float64."""
+    model = tracking_model(characters.humanoid().astype(jnp.float64), root_gains=(0.0, 0.0))
+    world = make_world(dtype=jnp.float64)
+    low, _ = characters.vertical_extent(model)
+    q0 = rest_pose(model, -low + 0.03)
+    rng = np.random.default_rng(1)
+    states = []
+    for k in range(batch):
+        q = q0.at[1].add(0.02 * k).at[7:].add(jnp.asarray(rng.normal(scale=0.05, size=36)))
+        qd = jnp.asarray(rng.normal(scale=0.3, size=model.nv))
+        states.append(simulation.init_state(model, world, q, qd))
+    return model, world, jax.tree.map(lambda *x: jnp.stack(x), *states), jnp.tile(q0, (steps, 1))
+
+
+def test_the_contact_step_matches_vmap_and_nothing_falls_back(fallbacks):
+    model, world, states, targets = humanoid_drop(40)
+    def run(state):
+        return simulation.simulate(model, world, state, targets, 1 / 600)[0]
+    expected = jax.jit(jax.vmap(run))(states)
+    got = jax.jit(batch_last.vmap(run))(states)
+    assert bool(jnp.any(got.touching))            # the rollout reached the ground
+    assert fallbacks == []                        # every primitive of the step has a rule
+    for e, g in zip(jax.tree.leaves(expected), jax.tree.leaves(got)):
+        np.testing.assert_allclose(np.asarray(g), np.asarray(e), rtol=0, atol=1e-10)
+
+
+def test_gradients_through_the_step_match_vmap():
+    model, world, states, targets = humanoid_drop(10, batch=3)
+
+    def final_height(vmap, lift):
+        moved = states.replace(q=states.q.at[:, 1].add(lift))
+        final = vmap(lambda s: simulation.simulate(model, world, s, targets, 1 / 600)[0])(moved)
+        return jnp.sum(final.q[:, 1] * jnp.arange(1.0, 4.0))
+    expected = jax.grad(lambda lift: final_height(jax.vmap, lift))(0.01)
+    got = jax.grad(lambda lift: final_height(batch_last.vmap, lift))(0.01)
+    assert np.isfinite(float(expected))
+    np.testing.assert_allclose(float(got), float(expected), rtol=1e-9)
+
+
+def test_bad_arguments_are_refused_clearly():
+    with pytest.raises(ValueError, match="in_axes 0 or None"):
+        batch_last.vmap(jnp.sin, in_axes=1)(batched(2))
+    with pytest.raises(ValueError, match="one batch size"):
+        batch_last.vmap(jnp.add)(batched(2), jnp.ones((3, 2)))
+    with pytest.raises(ValueError, match="2 entries for 1 arguments"):
+        batch_last.vmap(jnp.sin, in_axes=(0, None))(batched(2))
