@@ -45,8 +45,8 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)      # float64 runs; every model/world is cast explicitly
 
-from jaxsim import (allocator, characters, kinematics, motion, simulation, tracking,  # noqa: E402
-                    xla_options)
+from jaxsim import (allocator, batch_last, characters, kinematics, motion,  # noqa: E402
+                    simulation, tracking, xla_options)
 from jaxsim.model import rest_pose  # noqa: E402
 from jaxsim.world import make_world  # noqa: E402
 from jaxsim.atomic import write_text_atomic  # noqa: E402
@@ -211,9 +211,9 @@ def speed(args):
         passive = tracking.tracking_model(model, (0.0, 0.0), (0.0, 0.0))
 
         def rollout(states, poses, velocities, model, method):
-            run = lambda s: simulation.simulate(  # noqa: E731
-                model, world, s, poses, dt, method, target_velocities=velocities)[0]
-            return jax.vmap(run)(states)
+            return simulation.simulate_batch(model, world, states, poses, dt, method,
+                                             target_velocities=velocities,
+                                             batch_last=args.batch_layout)[0]
 
         def without_solve(states):
             # The same scan with the solve taken out (zero acceleration): what is left of a
@@ -221,7 +221,8 @@ def speed(args):
             def body(s, _):
                 return s.replace(q=kinematics.integrate(model, s.q, s.qd, dt)), None
             run = lambda s: jax.lax.scan(body, s, poses)[0]  # noqa: E731
-            return jax.vmap(run)(states)
+            vmap = jax.vmap if args.batch_layout is False else batch_last.vmap
+            return vmap(run)(states)
 
         for batch in args.batch:
             states = batched_states(tracking.initial_state(model, world, clip), batch)
@@ -235,7 +236,8 @@ def speed(args):
                 compile_s, run_s = _timed(functools.partial(rollout, model=model, method=method),
                                           (states, poses, velocities), args.repeats, method)
                 rows.append({"row": row, "dof": model.nv, "dt": dt, "batch": batch,
-                             "method": method, "steps": args.steps, "compile_s": compile_s,
+                             "method": method, "layout": layout(method, args.batch_layout),
+                             "steps": args.steps, "compile_s": compile_s,
                              "seconds": run_s, "steps_per_s": batch * args.steps / run_s,
                              "solve_share": 1.0 - other_s / run_s,
                              "spd_over_aba_share": 1.0 - aba_s / run_s,
@@ -245,9 +247,9 @@ def speed(args):
                       f"{100 * rows[-1]['spd_over_aba_share']:.0f}%, compile {compile_s:.1f} s",
                       file=sys.stderr, flush=True)
     table = markdown_table(
-        ["task", "DoF", "Δt", "batch", "method", "steps/s", "solve share", "SPD over ABA",
-         "compile s"],
-        [[r["row"], r["dof"], f"1/{round(1 / r['dt'])}", r["batch"], r["method"],
+        ["task", "DoF", "Δt", "batch", "method", "layout", "steps/s", "solve share",
+         "SPD over ABA", "compile s"],
+        [[r["row"], r["dof"], f"1/{round(1 / r['dt'])}", r["batch"], r["method"], r["layout"],
           f"{r['steps_per_s']:,.0f}", f"{100 * r['solve_share']:.0f}%",
           f"{100 * r['spd_over_aba_share']:.0f}%", f"{r['compile_s']:.1f}"] for r in rows])
     return rows, (f"Tracking steps per second (all characters together), float32. Solve share: "
@@ -260,10 +262,11 @@ def speed(args):
 # contacts
 
 
-def contact_scene(steps, torque_limits=False):
+def contact_scene(steps, torque_limits=False, batch_last=None):
     """The contact benchmark's setup: the humanoid (joints held by SPD, root free) dropped from
     5 cm onto the ground, maba, contacts and joint limits, 600 Hz, float32. Returns the model, its
-    initial state and `rollout(states)`, `steps` steps of a batch of such states."""
+    initial state and `rollout(states)`, `steps` steps of a batch of such states
+    (`simulation.simulate_batch`, its `batch_last` as given)."""
     model = tracking.tracking_model(characters.humanoid(), root_gains=(0.0, 0.0))
     world = make_world(torque_limits=torque_limits)
     low, _ = characters.vertical_extent(model)
@@ -271,8 +274,8 @@ def contact_scene(steps, torque_limits=False):
     targets = jnp.tile(q0, (steps, 1))
 
     def rollout(states):
-        return jax.vmap(lambda s: simulation.simulate(model, world, s, targets, 1 / 600)[0])(
-            states)
+        return simulation.simulate_batch(model, world, states, targets, 1 / 600,
+                                         batch_last=batch_last)[0]
     return model, simulation.init_state(model, world, q0), rollout
 
 
@@ -327,7 +330,7 @@ def time_mujoco(mj_model, state, batch, steps, repeats):
 
 
 def contacts(args):
-    model, state, rollout = contact_scene(args.steps, args.torque_limits)
+    model, state, rollout = contact_scene(args.steps, args.torque_limits, args.batch_layout)
     if args.mujoco:
         import mujoco
         mj_model, mj_state, mj_contacts = mujoco_scene(model, state.q, 1 / 600)
@@ -335,7 +338,8 @@ def contacts(args):
     for batch in args.batch:
         states = batched_states(state, batch)
         compile_s, run_s = _timed(rollout, (states,), args.repeats, "maba")
-        rows.append({"engine": "takeoff maba", "batch": batch, "devices": jax.device_count(),
+        rows.append({"engine": "takeoff maba", "layout": layout("maba", args.batch_layout),
+                     "batch": batch, "devices": jax.device_count(),
                      "steps": args.steps, "compile_s": compile_s,
                      "seconds": run_s, "steps_per_s": batch * args.steps / run_s})
         if args.mujoco:
@@ -349,8 +353,8 @@ def contacts(args):
             print(f"contacts batch {batch} {r['engine']}: {r['steps_per_s']:.0f} steps/s",
                   file=sys.stderr, flush=True)
     table = markdown_table(
-        ["engine", "batch", "devices / threads", "character-steps/s", "compile s"],
-        [[r["engine"], r["batch"], r.get("devices", r.get("threads")),
+        ["engine", "layout", "batch", "devices / threads", "character-steps/s", "compile s"],
+        [[r["engine"], r.get("layout", "–"), r["batch"], r.get("devices", r.get("threads")),
           f"{r['steps_per_s']:,.0f}", f"{r['compile_s']:.1f}" if "compile_s" in r else "–"]
          for r in rows])
     limits = ", torque limits (two-pass)" if args.torque_limits else ""
@@ -389,6 +393,7 @@ def parse_args(argv=None):
     p = sub.add_parser("plot", help="redraw the stability plots from the last stability JSON")
     p.add_argument("--plots", type=Path, default=Path("docs"))
     p = sub.add_parser("speed")
+    batch_layout_argument(p)
     p.add_argument("--rows", nargs="+", choices=list(ROWS), default=list(ROWS))
     p.add_argument("--methods", nargs="+", choices=("dense", "sparse", "maba"),
                    default=["dense", "sparse", "maba"])
@@ -398,6 +403,7 @@ def parse_args(argv=None):
     p.add_argument("--sparse-batched", action="store_true",
                    help="also time `sparse` above batch 1 (very slow: a scan over DoFs)")
     p = sub.add_parser("contacts")
+    batch_layout_argument(p)
     p.add_argument("--batch", nargs="+", type=int, default=[1, 256, 4096])
     p.add_argument("--torque-limits", action="store_true",
                    help="clip torques and re-solve with ABA where they bind (two-pass mode)")
@@ -408,6 +414,19 @@ def parse_args(argv=None):
     p = sub.add_parser("filmstrip")
     p.add_argument("--out", type=Path, default=Path("docs/cartwheel_tracking.png"))
     return parser.parse_args(argv)
+
+
+def layout(method, batch_last):
+    """How `simulation.simulate_batch` lays out the batch for `method` under --batch-first."""
+    last = method in simulation.BATCH_LAST_METHODS if batch_last is None else batch_last
+    return "batch last" if last else "batch first"
+
+
+def batch_layout_argument(parser):
+    parser.add_argument(
+        "--batch-first", dest="batch_layout", action="store_const", const=False, default=None,
+        help="batch as jax.vmap lays it out (first) instead of simulate_batch's default (last "
+             "for maba, pd and dense)")
 
 
 def main(argv=None):
