@@ -25,10 +25,10 @@ from jax.extend.core import ClosedJaxpr, Literal
 
 ELEMENTWISE = frozenset("""
     abs acos acosh add and asin asinh atan atan2 atanh cbrt ceil clamp conj convert_element_type
-    copy cos cosh digamma div eq erf erf_inv erfc exp exp2 expm1 floor ge gt imag
-    integer_pow is_finite le lgamma log log1p logistic lt max min mul ne neg nextafter not or pow
-    real reduce_precision rem round rsqrt select_n sign sin sinh sqrt square stop_gradient sub
-    tan tanh xor
+    copy cos cosh digamma div eq erf erf_inv erfc exp exp2 expm1 floor ge gt imag integer_pow
+    is_finite le le_to lgamma log log1p logistic lt lt_to max min mul ne neg nextafter not or
+    pow real reduce_precision rem round rsqrt select_n sign sin sinh sqrt square stop_gradient
+    sub tan tanh xor
 """.split())
 
 # Primitives whose parameters name axes of the operand (all below its rank, so unchanged when a
