@@ -23,6 +23,7 @@ from agents.rollout import make_rollout, start_runner
 from agents.tasks.imitation import ImitationEnv, ImitationSettings
 from agents.tasks.reach import ReachEnv, ReachSettings
 from agents.trainer import RunSettings
+from jaxsim import xla_options
 from jaxsim.atomic import write_text_atomic
 
 TASKS = ("imitation", "reach")
@@ -153,7 +154,8 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     state = trainer_lib.load_checkpoint(trainer.init(), run_dir)
     env = trainer.env
     rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply,
-                                   env.episode_steps, deterministic=True, keep_physics=True))
+                                   env.episode_steps, deterministic=True, keep_physics=True),
+                      compiler_options=xla_options.simulation_options())
     start_key, rollout_key = jax.random.split(jax.random.PRNGKey(config.run.seed + 1))
     runner = start_runner(env, trainer.env_params, start_key, episodes)
     p = state.ppo

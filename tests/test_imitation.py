@@ -17,7 +17,7 @@ import pytest
 from agents import config as config_io
 from agents.observations import body_observation, observation_size
 from agents.tasks.imitation import REWARD_TERMS, ImitationEnv, ImitationSettings
-from jaxsim import kinematics, rotations
+from jaxsim import batch_last, kinematics, rotations
 
 BATCH = 4
 # 0.2 s at 30 Hz: the time limit is 6 control steps (the other tests need no more).
@@ -264,6 +264,24 @@ def test_nan_actions_terminate_with_finite_observations(env, batched, starts):
     # The blown-up environments keep their state from before the step and earn nothing.
     np.testing.assert_array_equal(state.physics.q[1], starts.physics.q[1])
     assert state.reward[1] == 0 and state.reward[0] > 0
+
+
+def test_the_step_with_the_batch_innermost_equals_vmap(env, batched, starts):
+    """The rollout steps its environments with `batch_last.vmap`; it must compute what
+    `jax.vmap` does: random actions, one environment given NaN actions (it terminates), two
+    control steps (40 simulation steps with contacts), float64."""
+    _, step, _ = batched
+    step_last = jax.jit(batch_last.vmap(env.step, in_axes=(None, 0, 0)))
+    rng = np.random.default_rng(3)
+    actions = jnp.asarray(rng.normal(scale=0.3, size=(BATCH, env.action_size)))
+    actions = actions.at[2].set(jnp.nan)
+    params = env.default_params()
+    expected = got = starts
+    for _ in range(2):
+        expected, got = step(params, expected, actions), step_last(params, got, actions)
+        for e, g in zip(jax.tree.leaves(expected), jax.tree.leaves(got)):
+            np.testing.assert_allclose(np.asarray(g), np.asarray(e), rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(got.terminated, [False, False, True, False])
 
 
 def test_absolute_actions_and_action_scale(env, data_dir, reference):
