@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+from jax._src import source_info_util
 from jax.extend.core import ClosedJaxpr, Literal
 
 ELEMENTWISE = frozenset("""
@@ -77,11 +78,15 @@ class _Evaluator:
             ins = [read(v) for v in eqn.invars]
             in_values = [v for v, _ in ins]
             in_flags = [f for _, f in ins]
-            if not any(in_flags):
-                outs = eqn.primitive.bind(*in_values, **eqn.params)
-                out_flags = None
-            else:
-                outs, out_flags = self.apply(eqn, in_values, in_flags)
+            # The operations issued here carry the source line of the traced function's own
+            # operation, so profiles and errors point at the dynamics, not at this module.
+            with source_info_util.user_context(
+                    eqn.source_info.traceback, name_stack=source_info_util.current_name_stack()):
+                if not any(in_flags):
+                    outs = eqn.primitive.bind(*in_values, **eqn.params)
+                    out_flags = None
+                else:
+                    outs, out_flags = self.apply(eqn, in_values, in_flags)
             if not eqn.primitive.multiple_results:
                 outs = [outs]
                 out_flags = None if out_flags is None else [out_flags]
