@@ -226,7 +226,7 @@ def speed(args):
 
         for batch in args.batch:
             states = batched_states(tracking.initial_state(model, world, clip), batch)
-            # The two references are compiled as the tree methods are (XLA options and all).
+            # The two references are compiled as `simulate` compiles maba (XLA options and all).
             _, aba_s = _timed(functools.partial(rollout, model=passive, method="pd"),
                               (states, poses, velocities), args.repeats, "pd")
             _, other_s = _timed(without_solve, (states,), args.repeats, "maba")

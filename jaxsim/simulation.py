@@ -105,7 +105,7 @@ def simulate(model: Model, world: World, state: State, targets, dt, method: str 
 
     Returns (final state, the states after each control step), the latter with a leading time
     axis. A `lax.scan` over control steps around a `lax.scan` over substeps. Called at the top
-    level with a tree method (maba, pd), it compiles with `jaxsim.xla_options`.
+    level with any method but sparse, it compiles with `jaxsim.xla_options`.
     """
     check_layout(model, "targets", targets, "nq", leading="T")
     if target_velocities is not None:

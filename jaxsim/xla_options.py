@@ -1,28 +1,29 @@
 """XLA compiler options under which the simulator's compiled programs run faster on CPU.
 
-The step is a long chain of small fused loops over arrays whose minor axes are 3 and 6
-(docs/benchmarks.md, "Where the step's time goes"). Two of XLA's CPU code generators handle
-them worse than the older ones they replace:
+The step is a long chain of small fused loops (docs/benchmarks.md, "Where the step's time
+goes"). Three of XLA's CPU code-generation options change how well they run:
 
-- `xla_cpu_use_fusion_emitters`: XLA's newer fusion emitters. With the older loop emitters the
-  humanoid's contact step at batch 4096 runs about 1.2× faster, and compiles faster.
+- `xla_cpu_use_fusion_emitters`: XLA's newer fusion emitters. The older loop emitters run the
+  step faster and compile it faster; with the batch innermost (`jaxsim.batch_last`, as
+  `simulate_batch` computes) they are what makes that layout pay: under the newer emitters it
+  is slower than `jax.vmap`'s.
 - `xla_cpu_experimental_ynn_fusion_type`: which fusions XLA hands to the YNNPACK library. By
   default that includes elementwise fusions, which here are small and slower there; we keep
   only matrix products (`LIBRARY_FUSION_TYPE_DOT`).
+- `xla_cpu_prefer_vector_width`: 512-bit vectors, where the CPU has them (AVX-512); with the
+  batch innermost the loops run along the batch and fill them (about +10% on the contact step
+  at batch 4096). It is a preference, not a requirement: LLVM uses the widths a CPU has.
 
-The figures, and the command that measures them, are in docs/benchmarks.md ("XLA's CPU
-code generators"). The options change how loops are compiled, not which operations run; fast-math
-stays off, and in float64 a contact rollout agrees with XLA's defaults to 1e-9
-(tests/test_xla_options.py).
+The figures, and the commands that measure them, are in docs/benchmarks.md ("XLA's CPU code
+generators" and "The batch innermost, by interpreting the program"). The options change how
+loops are compiled, not which operations run; fast-math stays off, and in float64 a contact
+rollout agrees with XLA's defaults to 1e-9 (tests/test_xla_options.py).
 
-They are not a global default. They help the O(n) tree methods (`maba`, and ABA under `pd`);
-`dense` and `sparse`, built on matrix products and factorisations, run 11–13% slower under
-them at batch 4096. The PPO update, large matrix products and elementwise work on big parameter
-arrays, is about a third slower, and a training iteration that compiles rollout and update into
-one program comes out even. So `simulation.simulate` and `simulate_batch` use them for the tree
-methods only, and a caller can pass `simulation_options()` to its own
-`jax.jit(..., compiler_options=...)` when its program is mostly simulation by a tree method.
-Inside an outer `jit` the outer program's options apply.
+`simulation.simulate` and `simulate_batch` compile with them for every method but `sparse`,
+whose LTDL factorisation runs slower under them; the training iteration (rollout and PPO update
+in one program) too: its rollout runs twice as fast, its update about 1.2× slower. A caller can
+pass `simulation_options()` to its own `jax.jit(..., compiler_options=...)` when its program is
+mostly simulation. Inside an outer `jit` the outer program's options apply.
 
 Set `TAKEOFF_XLA_DEFAULTS=1` in the environment to compile with XLA's defaults instead, for
 comparison. On other backends, and with a jaxlib that does not know the options, they are not
@@ -41,10 +42,12 @@ from jax._src import core as jax_core
 SIMULATION_CPU_OPTIONS = {
     "xla_cpu_use_fusion_emitters": False,
     "xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_DOT",
+    "xla_cpu_prefer_vector_width": 512,
 }
 OPT_OUT_VARIABLE = "TAKEOFF_XLA_DEFAULTS"
-# The methods that solve by the tree passes of ABA: MABA, explicit PD followed by ABA, and ABA.
-TUNED_METHODS = ("maba", "pd", "aba")
+# The methods compiled with the options: all but sparse (MABA, explicit PD followed by ABA, ABA,
+# and dense CRBA + Cholesky).
+TUNED_METHODS = ("maba", "pd", "aba", "dense")
 
 
 def simulation_options() -> dict:

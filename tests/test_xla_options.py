@@ -38,8 +38,11 @@ def test_the_options_leave_a_contact_rollout_unchanged():
         return jax.vmap(lambda s: simulation.simulate(model, world, s, targets, DT)[0].q)(states)
     default = jax.jit(final_q)(states)
     tuned = jax.jit(final_q, compiler_options=options)(states)
+    # simulate_batch at the top level: the options and the batch innermost together
+    batch = simulation.simulate_batch(model, world, states, targets, DT)[0].q
     assert bool(jnp.all(jnp.isfinite(default)))
     np.testing.assert_allclose(np.asarray(tuned), np.asarray(default), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(batch), np.asarray(default), rtol=0, atol=1e-9)
 
 
 def test_simulate_takes_the_options_only_as_the_top_level_program():
@@ -54,7 +57,7 @@ def test_simulate_takes_the_options_only_as_the_top_level_program():
     np.testing.assert_allclose(np.asarray(constant), np.asarray(batch.q[0]), atol=1e-12)
 
 
-def test_tree_methods_compile_with_the_options_and_the_others_without():
+def test_methods_but_sparse_compile_with_the_options():
     seen = []
     real_jit = jax.jit
 
@@ -70,13 +73,13 @@ def test_tree_methods_compile_with_the_options_and_the_others_without():
         patch.setattr(jax, "jit", spy)
         double = xla_options.jit(scaled, static_argnames=("method",))
         assert seen == [None]              # the plain jit; the tuned one waits for a first call
-        assert float(double(jnp.float64(1.5), method="dense")) == 3.0
+        assert float(double(jnp.float64(1.5), method="sparse")) == 3.0
         assert seen == [None]
         assert float(double(jnp.float64(1.5))) == 3.0
     assert seen == [None, options]
     assert float(double.lower(jnp.float64(2.0)).compile()(jnp.float64(2.0))) == 4.0
     assert xla_options.options_for("sparse") == {}
-    assert xla_options.options_for("maba") == options
+    assert xla_options.options_for("maba") == xla_options.options_for("dense") == options
 
 
 def test_the_environment_can_ask_for_xla_defaults(monkeypatch):
