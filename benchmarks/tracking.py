@@ -417,16 +417,24 @@ def parse_args(argv=None):
 
 
 def layout(method, batch_last):
-    """How `simulation.simulate_batch` lays out the batch for `method` under --batch-first."""
+    """How `simulation.simulate_batch` lays out the batch for `method` under --layout."""
     last = method in simulation.BATCH_LAST_METHODS if batch_last is None else batch_last
     return "batch last" if last else "batch first"
 
 
+def _batch_last_flag(name):
+    """--layout first|last → simulate_batch's batch_last (False|True)."""
+    if name not in ("first", "last"):
+        raise argparse.ArgumentTypeError(f"--layout is first or last, not {name!r}")
+    return name == "last"
+
+
 def batch_layout_argument(parser):
     parser.add_argument(
-        "--batch-first", dest="batch_layout", action="store_const", const=False, default=None,
-        help="batch as jax.vmap lays it out (first) instead of simulate_batch's default (last "
-             "for maba, pd and dense)")
+        "--layout", dest="batch_layout", type=_batch_last_flag, default=None,
+        metavar="{first,last}",
+        help="the batch first (as jax.vmap lays it out) or last (jaxsim.batch_last) for every "
+             "method; by default, as simulate_batch chooses (last for maba, pd and dense)")
 
 
 def main(argv=None):
