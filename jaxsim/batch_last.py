@@ -83,7 +83,7 @@ class _Evaluator:
             with source_info_util.user_context(
                     eqn.source_info.traceback, name_stack=source_info_util.current_name_stack()):
                 if not any(in_flags):
-                    outs = eqn.primitive.bind(*in_values, **eqn.params)
+                    outs = _bind(eqn, in_values)
                     out_flags = None
                 else:
                     outs, out_flags = self.apply(eqn, in_values, in_flags)
@@ -113,7 +113,7 @@ class _Evaluator:
 
     def fallback(self, eqn, values, flags):
         """`jax.vmap` of the primitive alone, the batch moved to the front and back again."""
-        outs = jax.vmap(lambda *args: eqn.primitive.bind(*args, **eqn.params),
+        outs = jax.vmap(lambda *args: _bind(eqn, args),
                         in_axes=[-1 if f else None for f in flags], out_axes=-1,
                         axis_size=self.size)(*values)
         if eqn.primitive.multiple_results:
@@ -137,6 +137,15 @@ class _Evaluator:
                    for a, f in zip(closed.in_avals, batched)]
         jax.eval_shape(trace, *structs)
         return found[0]
+
+
+def _bind(eqn, values):
+    """The equation's primitive applied to `values`, its parameters turned back into what
+    `bind` takes, as `jax.core.eval_jaxpr` does (custom_jvp_call, for one, is recorded with a
+    jaxpr but bound with a function; older JAX also returns functions to pass first)."""
+    bind_params = eqn.primitive.get_bind_params(eqn.params)
+    subfuns, params = bind_params if isinstance(bind_params, tuple) else ((), bind_params)
+    return eqn.primitive.bind(*subfuns, *values, **params)
 
 
 def _avals(eqn):

@@ -64,6 +64,8 @@ def fallbacks(monkeypatch):
     (lambda x: jax.lax.dynamic_slice(x, (1, 2), (2, 2)), None),
     (lambda x: jax.lax.dynamic_update_slice(CONSTANT, x[:1, :2], (2, 1)), None),
     (lambda x: jax.jit(lambda y: jnp.exp(y).sum())(x), None),         # nested jit
+    (lambda x: jax.nn.relu(x) + jax.nn.softplus(x), {"custom_jvp_call"}),    # custom derivatives
+    (lambda x: x * jax.nn.relu(CONSTANT), None),                      # … on shared values
     (lambda x: (x @ CONSTANT.T, CONSTANT.T @ x, x @ x.T, x[0] @ x[1]), None),   # small dots
     (lambda x: jnp.einsum("ij,kj->ik", x, CONSTANT), None),
     (lambda x: jnp.einsum("ijk,ikl->ijl", x.reshape(2, 2, 3), x.reshape(2, 3, 2)), None),
@@ -153,6 +155,35 @@ def test_gradients_through_the_step_match_vmap():
     got = jax.grad(lambda lift: final_height(batch_last.vmap, lift))(0.01)
     assert np.isfinite(float(expected))
     np.testing.assert_allclose(float(got), float(expected), rtol=1e-9)
+
+
+@jax.custom_jvp
+def doubled_slope(x):
+    return x
+
+
+doubled_slope.defjvp(lambda primals, tangents: (primals[0], 2.0 * tangents[0]))
+
+
+@jax.custom_vjp
+def tripled_cotangent(x):
+    return x
+
+
+tripled_cotangent.defvjp(lambda x: (x, None), lambda _, cotangent: (3.0 * cotangent,))
+
+
+def test_custom_derivative_rules_are_kept():
+    """A function's own derivative rules survive, as under jax.vmap (here they differ from the
+    derivative of what the function computes, 1, so a lost rule would show)."""
+    xs = batched(3)
+    for fun in (lambda x: doubled_slope(x) * x, lambda x: tripled_cotangent(x) * x):
+        def total(vmap, xs):
+            return vmap(fun)(xs).sum()
+        expected = jax.grad(lambda v: total(jax.vmap, v))(xs)
+        np.testing.assert_allclose(np.asarray(jax.grad(lambda v: total(batch_last.vmap, v))(xs)),
+                                   np.asarray(expected), rtol=1e-13)
+        assert not np.allclose(np.asarray(expected), 2 * np.asarray(xs))
 
 
 def test_bad_arguments_are_refused_clearly():
