@@ -3,9 +3,9 @@
 `Trainer(env, env_params, run, ppo)` builds `iteration(state) -> (state, metrics, finite)`: a
 rollout of `steps_per_iteration` control steps for `envs` environments, the observation
 statistics merged in, then the PPO update — all one jitted function, compiled with the
-simulator's XLA options (`jaxsim.xla_options`: the rollout, which steps the environments with
-the batch innermost, takes most of the time and runs about twice as fast under them; the
-update runs about 1.2× slower). `TrainState` holds
+simulator's XLA options (`jaxsim.xla_options`). With them, and the environments stepped with
+the batch innermost, the rollout runs 2.4× faster; the update runs 1.2–1.4× slower under them;
+the iteration 1.44× faster (docs/benchmarks.md, PPO "Throughput"). `TrainState` holds
 everything that evolves (networks, optimisers, observation statistics, environments, PRNG key),
 so a checkpoint is one msgpack file and resuming from it continues bit for bit.
 

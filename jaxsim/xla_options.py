@@ -21,7 +21,7 @@ rollout agrees with XLA's defaults to 1e-9 (tests/test_xla_options.py).
 
 `simulation.simulate` and `simulate_batch` compile with them for every method but `sparse`,
 whose LTDL factorisation runs slower under them; the training iteration (rollout and PPO update
-in one program) too: its rollout runs twice as fast, its update about 1.2× slower. A caller can
+in one program) too: its rollout runs 2.4× as fast, its update 1.2–1.4× slower. A caller can
 pass `simulation_options()` to its own `jax.jit(..., compiler_options=...)` when its program is
 mostly simulation. Inside an outer `jit` the outer program's options apply.
 
