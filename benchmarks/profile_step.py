@@ -25,7 +25,7 @@ from pathlib import Path
 import jax
 
 from jaxsim import allocator, characters, xla_options
-from spd import random_inputs, solver, solver_args
+from spd import batched_solver, random_inputs, solver_args
 from tracking import batched_states, contact_scene
 
 
@@ -38,8 +38,7 @@ def contact_rollout(batch, steps):
 def maba_solve(batch):
     model = characters.humanoid()
     args = solver_args(model, random_inputs(model, batch, 0), "maba")
-    return jax.jit(jax.vmap(solver("maba"), in_axes=(None, 0, 0, 0)),
-                   compiler_options=xla_options.options_for("maba")), args
+    return jax.jit(batched_solver("maba"), compiler_options=xla_options.options_for("maba")), args
 
 
 def source_lines(hlo_text):

@@ -1,6 +1,7 @@
 """Time the dynamics solvers for one batch of characters: ABA and the four stable-PD solvers.
 
-Measures, per character and batch size, `jax.jit(jax.vmap(solver))` over (q, qd, target or τ):
+Measures, per character and batch size, `jax.jit(batched(solver))` over (q, qd, target or τ),
+batched as `simulation.simulate_batch` batches (`batched_solver`):
 
     aba      jaxsim.dynamics.aba with random joint torques
     pd       solve_spd(..., "pd"): explicit PD torques, then ABA
@@ -36,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsim import allocator, characters, dynamics, rotations, xla_options
+from jaxsim import allocator, batch_last, characters, dynamics, rotations, xla_options
 from jaxsim.atomic import write_text_atomic
 
 CHARACTERS = {
@@ -139,11 +140,19 @@ def compile_and_time(fn, args, repeats, method):
     return compile_s, outputs, times, faults
 
 
+def batched_solver(method):
+    """The solver over a batch, as `simulate_batch` computes it: with the batch innermost
+    (`jaxsim.batch_last`) for every method but sparse, which `jax.vmap` batches first."""
+    vmap = jax.vmap if method == "sparse" else batch_last.vmap
+    return vmap(solver(method), in_axes=(None, 0, 0, 0))
+
+
 def measure(method, args, repeats):
     """Compile seconds, per-call seconds, page faults per call, and whether the outputs of
-    jit(vmap(solver)) on `args` are all finite (a solver that returns NaN is not worth timing, so the caller warns)."""
-    compile_s, outputs, times, faults = compile_and_time(
-        jax.vmap(solver(method), in_axes=(None, 0, 0, 0)), args, repeats, method)
+    the jitted batched solver on `args` are all finite (a solver that returns NaN is not worth
+    timing, so the caller warns)."""
+    compile_s, outputs, times, faults = compile_and_time(batched_solver(method), args, repeats,
+                                                         method)
     finite = all(bool(jnp.isfinite(x).all()) for x in jax.tree.leaves(outputs))
     return compile_s, times, faults, finite
 
