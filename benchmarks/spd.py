@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsim import allocator, batch_last, characters, dynamics, rotations, xla_options
+from jaxsim import allocator, characters, dynamics, rotations, simulation, xla_options
 from jaxsim.atomic import write_text_atomic
 
 CHARACTERS = {
@@ -141,10 +141,8 @@ def compile_and_time(fn, args, repeats, method):
 
 
 def batched_solver(method):
-    """The solver over a batch, as `simulate_batch` computes it: with the batch innermost
-    (`jaxsim.batch_last`) for every method but sparse, which `jax.vmap` batches first."""
-    vmap = jax.vmap if method == "sparse" else batch_last.vmap
-    return vmap(solver(method), in_axes=(None, 0, 0, 0))
+    """The solver over a batch, laid out as `simulate_batch` lays out `method`."""
+    return simulation.batched(solver(method), method, in_axes=(None, 0, 0, 0))
 
 
 def measure(method, args, repeats):

@@ -45,8 +45,8 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)      # float64 runs; every model/world is cast explicitly
 
-from jaxsim import (allocator, batch_last, characters, kinematics, motion,  # noqa: E402
-                    simulation, tracking, xla_options)
+from jaxsim import (allocator, characters, kinematics, motion, simulation,  # noqa: E402
+                    tracking, xla_options)
 from jaxsim.model import rest_pose  # noqa: E402
 from jaxsim.world import make_world  # noqa: E402
 from jaxsim.atomic import write_text_atomic  # noqa: E402
@@ -221,8 +221,7 @@ def speed(args):
             def body(s, _):
                 return s.replace(q=kinematics.integrate(model, s.q, s.qd, dt)), None
             run = lambda s: jax.lax.scan(body, s, poses)[0]  # noqa: E731
-            vmap = jax.vmap if args.batch_layout is False else batch_last.vmap
-            return vmap(run)(states)
+            return simulation.batched(run, "maba", args.batch_layout)(states)
 
         for batch in args.batch:
             states = batched_states(tracking.initial_state(model, world, clip), batch)
@@ -418,8 +417,7 @@ def parse_args(argv=None):
 
 def layout(method, batch_last):
     """How `simulation.simulate_batch` lays out the batch for `method` under --layout."""
-    last = method in simulation.BATCH_LAST_METHODS if batch_last is None else batch_last
-    return "batch last" if last else "batch first"
+    return "batch last" if simulation.uses_batch_last(method, batch_last) else "batch first"
 
 
 def _batch_last_flag(name):
@@ -434,7 +432,7 @@ def batch_layout_argument(parser):
         "--layout", dest="batch_layout", type=_batch_last_flag, default=None,
         metavar="{first,last}",
         help="the batch first (as jax.vmap lays it out) or last (jaxsim.batch_last) for every "
-             "method; by default, as simulate_batch chooses (last for maba, pd and dense)")
+             "method; by default, as simulate_batch chooses (last for every method but sparse)")
 
 
 def main(argv=None):

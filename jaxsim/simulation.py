@@ -120,11 +120,24 @@ def simulate(model: Model, world: World, state: State, targets, dt, method: str 
     return jax.lax.scan(control_step, state, (targets, target_velocities))
 
 
-# The methods whose batched rollouts run faster with the batch innermost (`jaxsim.batch_last`):
+# Batched, every method runs faster with the batch innermost (`jaxsim.batch_last`) but sparse:
 # at batch 4096 the tracking step 1.8–1.9× with maba and 4–6× with dense, the contact step 1.7×
 # (docs/benchmarks.md). Sparse LTDL, which updates its work matrix one DoF at a time, runs 0.6×
 # as fast that way at batch 256 (1.7× at 4096), so it keeps `jax.vmap`'s layout.
-BATCH_LAST_METHODS = ("maba", "pd", "dense")
+BATCH_FIRST_METHODS = ("sparse",)
+
+
+def uses_batch_last(method: str, batch_last=None) -> bool:
+    """Whether a batch computed by `method` has the batch innermost: `batch_last` if given,
+    otherwise for every method outside `BATCH_FIRST_METHODS`."""
+    return method not in BATCH_FIRST_METHODS if batch_last is None else batch_last
+
+
+def batched(fun, method: str, batch_last=None, in_axes=0):
+    """`fun` over a batch (axis 0 in and out), laid out as `uses_batch_last` chooses:
+    `jaxsim.batch_last.vmap` or `jax.vmap`, with `in_axes` 0 or None per argument."""
+    vmap = batch_last_vmap if uses_batch_last(method, batch_last) else jax.vmap
+    return vmap(fun, in_axes=in_axes)
 
 
 @functools.partial(xla_options.jit, static_argnames=("method", "substeps", "batch_last"))
@@ -136,14 +149,12 @@ def simulate_batch(model: Model, world: World, states: State, targets, dt, metho
 
     `batch_last` chooses how the batch is computed: with the batch as the innermost axis
     (`jaxsim.batch_last.vmap`), or as `jax.vmap` does, first. By default (None) the former for
-    the methods in `BATCH_LAST_METHODS`. The results are the same either way.
+    every method but those in `BATCH_FIRST_METHODS`. The results are the same either way.
     """
     def run(state, target, target_velocity):
         return simulate(model, world, state, target, dt, method, substeps, target_velocity)
 
     def axis(value):
         return None if value is None or jnp.ndim(value) == 2 else 0
-    use_last = method in BATCH_LAST_METHODS if batch_last is None else batch_last
-    vmap = batch_last_vmap if use_last else jax.vmap
-    return vmap(run, in_axes=(0, axis(targets), axis(target_velocities)))(
+    return batched(run, method, batch_last, in_axes=(0, axis(targets), axis(target_velocities)))(
         states, targets, target_velocities)
