@@ -120,9 +120,12 @@ class _Evaluator:
             return outs, [True] * len(outs)
         return outs, True
 
-    def full(self, values, flags, avals):
-        """Every value batched (unbatched ones repeated along the batch axis)."""
-        return [v if f else _broadcast(v, a, self.size) for v, f, a in zip(values, flags, avals)]
+    def widen(self, values, flags, avals, wanted=None):
+        """The values with a batch axis wherever `wanted` asks for one (everywhere when None):
+        unbatched ones there are repeated along it."""
+        wanted = [True] * len(values) if wanted is None else wanted
+        return [_broadcast(v, a, self.size) if want and not f else v
+                for v, f, a, want in zip(values, flags, avals, wanted)]
 
     def abstract_flags(self, closed: ClosedJaxpr, batched):
         """Which outputs of `closed` come out batched for these input flags (traces, no FLOPs)."""
@@ -207,7 +210,7 @@ def _transpose(ev, eqn, values, flags):
 
 def _joined(ev, eqn, values, flags):
     """concatenate and stack: the joined axis lies before the trailing batch axis."""
-    return eqn.primitive.bind(*ev.full(values, flags, _avals(eqn)), **eqn.params), True
+    return eqn.primitive.bind(*ev.widen(values, flags, _avals(eqn)), **eqn.params), True
 
 
 def _pad(ev, eqn, values, flags):
@@ -229,7 +232,7 @@ def _dynamic_slice(ev, eqn, values, flags):
 def _dynamic_update_slice(ev, eqn, values, flags):
     if any(flags[2:]):
         return None
-    operand, update = ev.full(values[:2], flags[:2], _avals(eqn)[:2])
+    operand, update = ev.widen(values[:2], flags[:2], _avals(eqn)[:2])
     zero = jnp.zeros((), values[2].dtype) if len(values) > 2 else 0
     return eqn.primitive.bind(operand, update, *values[2:], zero, **eqn.params), True
 
@@ -253,7 +256,7 @@ def _scatter(ev, eqn, values, flags):
     if flags[1]:
         return None
     avals = _avals(eqn)
-    operand, updates = ev.full([values[0], values[2]], [flags[0], flags[2]],
+    operand, updates = ev.widen([values[0], values[2]], [flags[0], flags[2]],
                                [avals[0], avals[2]])
     params = dict(eqn.params)
     numbers = params["dimension_numbers"]
@@ -272,27 +275,24 @@ def _dot_general(ev, eqn, values, flags):
     if int(np.prod(contracted, dtype=int)) > SMALL_CONTRACTION:
         return None
 
-    def arrange(value, flag, aval, batch_dims, contract_dims, free_first):
-        """value → (batch dims, lhs free, rhs free, contracted, batch-of-examples axis), with
-        size-1 axes standing in for the other operand's free dimensions."""
+    def arrange(value, flag, aval, batch_dims, contract_dims):
+        """value → (batch dims, free dims, contracted dims, batch-of-examples axis), and the
+        number of its free dims."""
         rank = len(aval.shape)
         free = [d for d in range(rank) if d not in batch_dims and d not in contract_dims]
-        order = list(batch_dims) + free + list(contract_dims)
-        if not flag:
-            value = value[..., None]
-        value = jnp.transpose(value, order + [rank])
-        ones = (1,) * other_free[free_first]
-        shape = value.shape
-        nb, nf = len(batch_dims), len(free)
-        if free_first:                                   # lhs: its free dims, then ones
-            return value.reshape(shape[:nb + nf] + ones + shape[nb + nf:])
-        return value.reshape(shape[:nb] + ones + shape[nb:])
+        value = value if flag else value[..., None]
+        order = list(batch_dims) + free + list(contract_dims) + [rank]
+        return jnp.transpose(value, order), len(free)
 
-    free_count = [len(lhs_aval.shape) - len(lhs_c) - len(lhs_b),
-                  len(rhs_aval.shape) - len(rhs_c) - len(rhs_b)]
-    other_free = {True: free_count[1], False: free_count[0]}
-    lhs = arrange(values[0], flags[0], lhs_aval, lhs_b, lhs_c, True)
-    rhs = arrange(values[1], flags[1], rhs_aval, rhs_b, rhs_c, False)
+    def ones_at(value, at, count):
+        """`count` size-1 axes inserted before axis `at`."""
+        return value.reshape(value.shape[:at] + (1,) * count + value.shape[at:])
+
+    lhs, lhs_free = arrange(values[0], flags[0], lhs_aval, lhs_b, lhs_c)
+    rhs, rhs_free = arrange(values[1], flags[1], rhs_aval, rhs_b, rhs_c)
+    # Both as (batch dims, lhs free, rhs free, contracted, examples), size 1 where absent.
+    lhs = ones_at(lhs, len(lhs_b) + lhs_free, rhs_free)
+    rhs = ones_at(rhs, len(rhs_b), lhs_free)
     out_dtype = eqn.outvars[0].aval.dtype
     lhs, rhs = lhs.astype(out_dtype), rhs.astype(out_dtype)
     n_contracted, rank = len(contracted), lhs.ndim
@@ -318,7 +318,6 @@ def _scan(ev, eqn, values, flags):
     const_flags = list(flags[:n_consts])
     carry_flags = list(flags[n_consts:n_consts + n_carry])
     xs_flags = list(flags[n_consts + n_carry:])
-    body_avals = body.in_avals
     while True:
         out_flags = ev.abstract_flags(body, const_flags + carry_flags + xs_flags)
         merged = [a or b for a, b in zip(carry_flags, out_flags[:n_carry])]
@@ -327,19 +326,15 @@ def _scan(ev, eqn, values, flags):
         carry_flags = merged
     ys_flags = out_flags[n_carry:]
     consts = values[:n_consts]
-    init = [v if f or not want else _broadcast(v, a, ev.size)
-            for v, f, want, a in zip(values[n_consts:n_consts + n_carry],
-                                     flags[n_consts:n_consts + n_carry], carry_flags,
-                                     avals[n_consts:n_consts + n_carry])]
+    carry_avals = avals[n_consts:n_consts + n_carry]
+    init = ev.widen(values[n_consts:n_consts + n_carry], flags[n_consts:n_consts + n_carry],
+                    carry_avals, carry_flags)
     xs = values[n_consts + n_carry:]
 
     def step(carry, x):
         outs, out = ev.run(body, list(consts) + list(carry) + list(x),
                            const_flags + carry_flags + xs_flags)
-        carry_out = [v if f or not want else _broadcast(v, a, ev.size)
-                     for v, f, want, a in zip(outs[:n_carry], out[:n_carry], carry_flags,
-                                              body_avals[n_consts:n_consts + n_carry])]
-        return carry_out, outs[n_carry:]
+        return ev.widen(outs[:n_carry], out[:n_carry], carry_avals, carry_flags), outs[n_carry:]
 
     carry, ys = lax.scan(step, init, xs, length=p["length"], reverse=p["reverse"],
                          unroll=p["unroll"])
@@ -357,8 +352,8 @@ def _cond(ev, eqn, values, flags):
         results = [ev.run(b, operands, op_flags) for b in branches]
         outs = []
         for k, aval in enumerate(out_avals):
-            cases = [vals[k] if fl[k] else _broadcast(vals[k], aval, ev.size)
-                     for vals, fl in results]
+            cases = ev.widen([vals[k] for vals, _ in results], [fl[k] for _, fl in results],
+                             [aval] * len(results))
             which = lax.broadcast_in_dim(index, _batched_shape(aval, ev.size),
                                          (len(aval.shape),))
             outs.append(lax.select_n(which, *cases))
@@ -368,8 +363,7 @@ def _cond(ev, eqn, values, flags):
     def branch_fun(closed):
         def run(*ops):
             outs, fl = ev.run(closed, ops, op_flags)
-            return [v if f or not want else _broadcast(v, a, ev.size)
-                    for v, f, want, a in zip(outs, fl, out_flags, out_avals)]
+            return ev.widen(outs, fl, out_avals, out_flags)
         return run
     return lax.switch(index, [branch_fun(b) for b in branches], *operands), out_flags
 
