@@ -17,7 +17,7 @@ import jax.numpy as jnp
 from agents.env import Env, EnvState
 from agents.networks import action_distribution
 from agents.ppo import Batch, RunningNorm
-from jaxsim import batch_last as batch_last_lib
+from jaxsim import batch_last
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,14 +59,12 @@ def _select(done, fresh, stepped):
 
 
 def make_rollout(env: Env, policy_apply, value_apply, n_steps: int, deterministic=False,
-                 keep_physics=False, batch_last=True):
+                 keep_physics=False):
     """rollout(params, runner, policy_params, value_params, norm, sigma, key) ->
     (runner, batch, raw_obs, episodes, metrics, physics-or-None); see the module docstring.
-
-    `batch_last`: step the environments with the batch as the innermost axis
-    (`jaxsim.batch_last`), faster for the simulator; False steps them with `jax.vmap`."""
-    vmap = batch_last_lib.vmap if batch_last else jax.vmap
-    batched_step = vmap(env.step, in_axes=(None, 0, 0))
+    The environments step with the batch as the innermost axis (`jaxsim.batch_last`), where the
+    simulator runs faster; their resets, once per control step, with `jax.vmap`."""
+    batched_step = batch_last.vmap(env.step, in_axes=(None, 0, 0))
     batched_reset = jax.vmap(env.reset, in_axes=(None, 0))
 
     def rollout(params, runner: Runner, policy_params, value_params, norm: RunningNorm, sigma,

@@ -1,4 +1,5 @@
-"""Shared test setup: float64 everywhere, the reference data directory, random states."""
+"""Shared test setup: float64 everywhere, the reference data directory, random states, dropped
+humanoids."""
 
 import os
 import pathlib
@@ -10,8 +11,10 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 
-from jaxsim import characters  # noqa: E402  (after enabling float64)
+from jaxsim import characters, simulation  # noqa: E402  (after enabling float64)
 from jaxsim.model import rest_pose  # noqa: E402
+from jaxsim.tracking import tracking_model  # noqa: E402
+from jaxsim.world import make_world  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -47,6 +50,26 @@ def random_state(model, seed, joint_spread=0.6, velocity_scale=1.0):
     q, target = random_pose(), random_pose()
     qd = rng.normal(scale=velocity_scale, size=topo.nv)
     return jnp.asarray(q), jnp.asarray(qd), jnp.asarray(target)
+
+
+def dropped_humanoids(steps, batch, height, jitter=False):
+    """`batch` humanoids (joints held by SPD at the rest pose, root free) dropped onto the ground,
+    the k-th with its lowest point `height` + 2k cm up; with `jitter`, random joint angles
+    (σ 0.05) and velocities (σ 0.3). Contacts, joint limits, float64. Returns the model, the
+    world, the batched initial states and the targets (steps, nq)."""
+    model = tracking_model(characters.humanoid().astype(jnp.float64), root_gains=(0.0, 0.0))
+    world = make_world(dtype=jnp.float64)
+    low, _ = characters.vertical_extent(model)
+    q0 = rest_pose(model, -low + height)
+    rng = np.random.default_rng(1)
+    states = []
+    for k in range(batch):
+        q, qd = q0.at[1].add(0.02 * k), None
+        if jitter:
+            q = q.at[7:].add(jnp.asarray(rng.normal(scale=0.05, size=model.nq - 7)))
+            qd = jnp.asarray(rng.normal(scale=0.3, size=model.nv))
+        states.append(simulation.init_state(model, world, q, qd))
+    return model, world, jax.tree.map(lambda *x: jnp.stack(x), *states), jnp.tile(q0, (steps, 1))
 
 
 @pytest.fixture(scope="session")

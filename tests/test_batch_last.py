@@ -6,10 +6,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsim import batch_last, characters, rest_pose, simulation
+from conftest import dropped_humanoids
+from jaxsim import batch_last, simulation
 from jaxsim.dynamics.common import cholesky_solve
-from jaxsim.tracking import tracking_model
-from jaxsim.world import make_world
 
 RNG = np.random.default_rng(0)
 BATCH = 5
@@ -114,28 +113,12 @@ def test_cholesky_solve_matches_lapack():
                                rtol=1e-11, atol=1e-11)
 
 
-def humanoid_drop(steps, batch=4):
-    """Humanoids with different heights, joint angles and velocities dropped onto the ground:
-    contacts, joint limits, maba, 600 Hz, float64."""
-    model = tracking_model(characters.humanoid().astype(jnp.float64), root_gains=(0.0, 0.0))
-    world = make_world(dtype=jnp.float64)
-    low, _ = characters.vertical_extent(model)
-    q0 = rest_pose(model, -low + 0.03)
-    rng = np.random.default_rng(1)
-    states = []
-    for k in range(batch):
-        q = q0.at[1].add(0.02 * k).at[7:].add(jnp.asarray(rng.normal(scale=0.05, size=36)))
-        qd = jnp.asarray(rng.normal(scale=0.3, size=model.nv))
-        states.append(simulation.init_state(model, world, q, qd))
-    return model, world, jax.tree.map(lambda *x: jnp.stack(x), *states), jnp.tile(q0, (steps, 1))
-
-
 @pytest.mark.parametrize("method, falls_back", [
     ("maba", set()),                                    # every primitive of the step has a rule
     ("dense", {"cholesky", "triangular_solve"}),        # LAPACK, per example
 ])
 def test_the_contact_step_matches_vmap(method, falls_back, fallbacks):
-    model, world, states, targets = humanoid_drop(40)
+    model, world, states, targets = dropped_humanoids(40, 4, height=0.03, jitter=True)
     def run(state):
         return simulation.simulate(model, world, state, targets, 1 / 600, method)[0]
     expected = jax.jit(jax.vmap(run))(states)
@@ -147,7 +130,7 @@ def test_the_contact_step_matches_vmap(method, falls_back, fallbacks):
 
 
 def test_gradients_through_the_step_match_vmap():
-    model, world, states, targets = humanoid_drop(10, batch=3)
+    model, world, states, targets = dropped_humanoids(10, 3, height=0.03, jitter=True)
 
     def final_height(vmap, lift):
         moved = states.replace(q=states.q.at[:, 1].add(lift))

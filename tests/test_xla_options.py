@@ -8,22 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsim import characters, rest_pose, simulation, xla_options
-from jaxsim.tracking import tracking_model
-from jaxsim.world import make_world
+from conftest import dropped_humanoids
+from jaxsim import simulation, xla_options
 
 DT = 1 / 600
-
-
-def humanoid_drop(steps):
-    """Two humanoids dropped from 5 and 7 cm onto the ground (contacts, joint limits, maba):
-    model, world, the batched initial states and the targets."""
-    model = tracking_model(characters.humanoid().astype(jnp.float64), root_gains=(0.0, 0.0))
-    world = make_world(dtype=jnp.float64)
-    low, _ = characters.vertical_extent(model)
-    q0 = rest_pose(model, -low + 0.05)
-    states = [simulation.init_state(model, world, q0.at[1].add(lift)) for lift in (0.0, 0.02)]
-    return model, world, jax.tree.map(lambda *x: jnp.stack(x), *states), jnp.tile(q0, (steps, 1))
 
 
 def test_the_options_leave_a_contact_rollout_unchanged():
@@ -32,7 +20,7 @@ def test_the_options_leave_a_contact_rollout_unchanged():
         # The comparison means something only where the options are in use. The jaxlib that
         # CI installs accepts them; one that drops them should fail here, not go unnoticed.
         assert options == xla_options.SIMULATION_CPU_OPTIONS
-    model, world, states, targets = humanoid_drop(120)
+    model, world, states, targets = dropped_humanoids(120, 2, height=0.05)
 
     def final_q(states):       # simulate inside this jit: the outer program's options apply
         return jax.vmap(lambda s: simulation.simulate(model, world, s, targets, DT)[0].q)(states)
@@ -46,7 +34,7 @@ def test_the_options_leave_a_contact_rollout_unchanged():
 
 
 def test_simulate_takes_the_options_only_as_the_top_level_program():
-    model, world, states, targets = humanoid_drop(3)
+    model, world, states, targets = dropped_humanoids(3, 2, height=0.05)
     batch = simulation.simulate_batch(model, world, states, jnp.stack([targets, targets]), DT)[0]
     # Inside vmap and jit the arguments are tracers; JAX refuses compiler options there.
     nested = jax.jit(jax.vmap(lambda s: simulation.simulate(model, world, s, targets, DT)[0]))
