@@ -96,12 +96,6 @@ class Topology:
         return table
 
     @functools.cached_property
-    def padded_parents(self) -> np.ndarray:
-        """Parent of each link, with the root's and the dummy link's parent the dummy index n."""
-        return np.array([p if p >= 0 else self.n_links for p in self.parents] + [self.n_links],
-                        np.int32)
-
-    @functools.cached_property
     def slot_dof_index(self) -> np.ndarray:
         """(n+1, 3): index into qd of each non-root joint's velocity slot, nv where unused."""
         table = np.full((self.n_links + 1, JOINT_SLOTS), self.nv, np.int32)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import random_state
-from jaxsim import builder, dynamics, kinematics
+from jaxsim import builder, dynamics, kinematics, tree
 from jaxsim.model import State
 
 MODELS = ["humanoid", "quadruped", "snake10", "deepmimic_humanoid", "deepmimic_dog"]
@@ -83,6 +83,32 @@ def test_aba_stays_accurate_on_a_195_dof_chain():
     model32 = characters.snake(63, dtype=jnp.float32)
     qdd32 = jax.jit(dynamics.aba)(model32, *(x.astype(jnp.float32) for x in (q, qd, tau)))
     assert relative_error(qdd32.astype(jnp.float64), expected) < 1e-3
+
+
+@pytest.mark.parametrize("name", ["deepmimic_humanoid", "deepmimic_dog", "snake10"])
+def test_unrolled_and_scanned_tree_traversals_agree(models, name, monkeypatch):
+    """`jaxsim.tree` walks shallow trees level by level in straight-line code and deep ones by a
+    scan over a padded level table; both give the same kinematics, ABA, MABA and RNEA."""
+    model = models[name]
+    q, qd, target = random_state(model, 7)
+    model = with_random_gains(model, 8, root_gains=True)
+    rng = np.random.default_rng(9)
+    tau = jnp.asarray(rng.normal(scale=20.0, size=model.nv))
+    f_ext = jnp.asarray(rng.normal(size=(model.n_links, 6)))
+
+    def everything():       # traced afresh on each call, so each call sees the current setting
+        return jax.jit(lambda m: (
+            kinematics.link_velocities(m, q, qd), dynamics.aba(m, q, qd, tau, f_ext),
+            dynamics.solve_spd(m, q, qd, target, DT, method="maba", f_ext=f_ext),
+            dynamics.rnea(m, q, qd, tau, f_ext)))(model)
+
+    results = {}
+    for max_levels in (0, 1000):
+        monkeypatch.setattr(tree, "UNROLL_MAX_LEVELS", max_levels)
+        assert tree.unrolled(model.topology) == bool(max_levels)
+        results[max_levels] = everything()
+    for scanned, unrolled in zip(*(jax.tree.leaves(r) for r in results.values())):
+        assert relative_error(unrolled, scanned) < 1e-12
 
 
 @pytest.mark.parametrize("name", ["humanoid", "quadruped", "snake10"])
