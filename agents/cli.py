@@ -61,10 +61,11 @@ def _cmd_mjcf(args):
 def _cmd_search(args):
     from agents import strategy_search
     from agents.config import ConfigError
+    from bds.search import SearchError
 
     try:
         strategy_search.run(args.config, args.out, args.set, args.workers)
-    except (ConfigError, ValueError) as error:
+    except (ConfigError, SearchError) as error:
         raise SystemExit(f"takeoff search: {error}")
 
 

@@ -50,6 +50,11 @@ LBFGS_CANDIDATES = 1024         # uniform points the L-BFGS starts of an explora
 ROTATION_DIM = 3                # the feature size the "rotation" distance takes (a rotation vector)
 
 
+class SearchError(ValueError):
+    """A search log or a black-box output the search cannot use; the message names the file and
+    line, or the evaluation."""
+
+
 @dataclass(frozen=True)
 class SearchSettings:
     strategy: str = "bds"           # "bds" or "random"
@@ -268,7 +273,7 @@ def _parse(path, lines):
         try:
             records.append(json.loads(line))
         except json.JSONDecodeError as error:
-            raise ValueError(f"{path}, line {number}: not valid JSON ({error.msg})") from None
+            raise SearchError(f"{path}, line {number}: not valid JSON ({error.msg})") from None
     return records
 
 
@@ -304,14 +309,14 @@ class SearchLog:
             return
         records = _parse(self.path, lines)
         if not records or records[0].get("event") != "start":
-            raise ValueError(f"{self.path}: not a search log (the first line must be the "
+            raise SearchError(f"{self.path}: not a search log (the first line must be the "
                              "search's 'start' record)")
         # A setting added after the log was written is taken to have had its default value.
         stored = {**_as_json(dataclasses.asdict(SearchSettings())),
                   **{key: value for key, value in records[0].items() if key != "event"}}
         for key, value in self.header.items():
             if stored.get(key) != value:
-                raise ValueError(f"{self.path}: this log belongs to a different search: its "
+                raise SearchError(f"{self.path}: this log belongs to a different search: its "
                                  f"{key} is {stored.get(key)!r}, the settings give {value!r}; "
                                  "use another log file or the same settings")
         for number, record in enumerate(records[1:], 2):
@@ -320,7 +325,7 @@ class SearchLog:
             elif record.get("event") == "evaluation":
                 self.evaluations[record["index"]] = record
             else:
-                raise ValueError(f"{self.path}, line {number}: unknown event "
+                raise SearchError(f"{self.path}, line {number}: unknown event "
                                  f"{record.get('event')!r}")
         whole = "".join(line + "\n" for line in lines)
         if whole != text:                         # so the next record starts on a line of its own
@@ -352,7 +357,7 @@ class SearchLog:
 def _feature(value, index, x):
     feature = np.atleast_1d(np.asarray(value, float))
     if feature.ndim != 1 or not np.all(np.isfinite(feature)):
-        raise ValueError(f"evaluation {index} at x = {list(x)} returned {value!r}; the black box "
+        raise SearchError(f"evaluation {index} at x = {list(x)} returned {value!r}; the black box "
                          "must return a finite number or a 1-D list of finite numbers")
     return feature
 
@@ -394,10 +399,13 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
     def finish(record):
         earlier = next(iter(record_log.evaluations.values()), None)
         if earlier is not None and len(earlier["feature"]) != len(record["feature"]):
-            raise ValueError(f"evaluation {record['index']} at x = {record['x']} returned "
+            raise SearchError(f"evaluation {record['index']} at x = {record['x']} returned "
                              f"{len(record['feature'])} numbers; earlier evaluations returned "
                              f"{len(earlier['feature'])}")
-        settings.check_feature_dim(len(record["feature"]))
+        try:
+            settings.check_feature_dim(len(record["feature"]))
+        except ValueError as error:
+            raise SearchError(f"evaluation {record['index']} at x = {record['x']}: {error}") from None
         record_log.add_evaluation(record)
         if progress is not None:
             progress(record)

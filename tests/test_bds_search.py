@@ -12,7 +12,7 @@ import pytest
 from agents.cli import main
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.optimize import direct, maximize_lbfgs
-from bds.search import SearchSettings, search
+from bds.search import SearchError, SearchSettings, search
 from test_cli import run as run_cli
 
 # Standard global-optimisation test functions (Dixon & Szegő 1978; minima as in Jones et al. 1993).
@@ -295,7 +295,7 @@ def test_a_log_cut_off_in_its_header_starts_afresh(tmp_path, cut):
 def test_a_file_that_is_not_a_search_log_is_refused_and_left_as_it_was(tmp_path, text):
     log = tmp_path / "notes.jsonl"
     log.write_text(text)
-    with pytest.raises(ValueError, match="not a search log"):
+    with pytest.raises(SearchError, match="not a search log"):
         search(lambda x: x[0], [0], [1], SearchSettings(strategy="random", budget=2), log=log)
     assert log.read_text() == text
 
@@ -303,7 +303,7 @@ def test_a_file_that_is_not_a_search_log_is_refused_and_left_as_it_was(tmp_path,
 def test_a_log_from_other_settings_is_refused(tmp_path):
     log = tmp_path / "search.jsonl"
     search(lambda x: x[0], [0], [1], SearchSettings(strategy="random", budget=2), log=log)
-    with pytest.raises(ValueError, match="different search: its seed is 0, the settings give 1"):
+    with pytest.raises(SearchError, match="different search: its seed is 0, the settings give 1"):
         search(lambda x: x[0], [0], [1], SearchSettings(strategy="random", budget=2, seed=1),
                log=log)
 
@@ -430,6 +430,26 @@ def test_a_resumed_takeoff_search_checks_its_config_json(tmp_path, capsys):
     (out_dir / "config.json").unlink()
     with pytest.raises(SystemExit, match="holds a search log but no config.json"):
         main(["search", str(config), "--out", str(out_dir), "--set", "search.budget=6"])
+
+
+def test_takeoff_search_reports_a_damaged_log_and_lets_other_errors_through(
+        tmp_path, capsys, monkeypatch):
+    config = write_config(tmp_path, RANDOM_SEARCH)
+    out_dir = tmp_path / "run"
+    assert run_cli(["search", str(config), "--out", str(out_dir)], capsys)[0] == 0
+    log = out_dir / "evaluations.jsonl"
+    lines = log.read_text().splitlines(keepends=True)
+    log.write_text("".join(lines[:2] + ["{not json\n"] + lines[3:]))
+    with pytest.raises(SystemExit, match=f"{log}, line 3: not valid JSON"):
+        main(["search", str(config), "--out", str(out_dir)])
+    # Anything else is a bug: it keeps its traceback instead of becoming a one-line message.
+    from agents import strategy_search
+
+    def broken(*args, **kwargs):
+        raise ValueError("a bug")
+    monkeypatch.setattr(strategy_search, "run", broken)
+    with pytest.raises(ValueError, match="a bug"):
+        main(["search", str(config), "--out", str(out_dir)])
 
 
 def test_progress_after_a_resume_counts_the_strategies_already_found(tmp_path, capsys):
