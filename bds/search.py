@@ -310,15 +310,15 @@ class SearchLog:
         records = _parse(self.path, lines)
         if not records or records[0].get("event") != "start":
             raise SearchError(f"{self.path}: not a search log (the first line must be the "
-                             "search's 'start' record)")
+                              "search's 'start' record)")
         # A setting added after the log was written is taken to have had its default value.
         stored = {**_as_json(dataclasses.asdict(SearchSettings())),
                   **{key: value for key, value in records[0].items() if key != "event"}}
         for key, value in self.header.items():
             if stored.get(key) != value:
                 raise SearchError(f"{self.path}: this log belongs to a different search: its "
-                                 f"{key} is {stored.get(key)!r}, the settings give {value!r}; "
-                                 "use another log file or the same settings")
+                                  f"{key} is {stored.get(key)!r}, the settings give {value!r}; "
+                                  "use another log file or the same settings")
         for number, record in enumerate(records[1:], 2):
             if record.get("event") == "plan":
                 self.plans[record["first_index"]] = (record["points"], record["kinds"])
@@ -326,7 +326,7 @@ class SearchLog:
                 self.evaluations[record["index"]] = record
             else:
                 raise SearchError(f"{self.path}, line {number}: unknown event "
-                                 f"{record.get('event')!r}")
+                                  f"{record.get('event')!r}")
         whole = "".join(line + "\n" for line in lines)
         if whole != text:                         # so the next record starts on a line of its own
             write_text_atomic(self.path, whole)
@@ -358,7 +358,7 @@ def _feature(value, index, x):
     feature = np.atleast_1d(np.asarray(value, float))
     if feature.ndim != 1 or not np.all(np.isfinite(feature)):
         raise SearchError(f"evaluation {index} at x = {list(x)} returned {value!r}; the black box "
-                         "must return a finite number or a 1-D list of finite numbers")
+                          "must return a finite number or a 1-D list of finite numbers")
     return feature
 
 
@@ -400,12 +400,13 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
         earlier = next(iter(record_log.evaluations.values()), None)
         if earlier is not None and len(earlier["feature"]) != len(record["feature"]):
             raise SearchError(f"evaluation {record['index']} at x = {record['x']} returned "
-                             f"{len(record['feature'])} numbers; earlier evaluations returned "
-                             f"{len(earlier['feature'])}")
+                              f"{len(record['feature'])} numbers; earlier evaluations returned "
+                              f"{len(earlier['feature'])}")
         try:
             settings.check_feature_dim(len(record["feature"]))
         except ValueError as error:
-            raise SearchError(f"evaluation {record['index']} at x = {record['x']}: {error}") from None
+            raise SearchError(f"evaluation {record['index']} at x = {record['x']}: "
+                              f"{error}") from None
         record_log.add_evaluation(record)
         if progress is not None:
             progress(record)

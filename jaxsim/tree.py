@@ -8,7 +8,7 @@ Two ways to walk the levels, chosen per tree by `unrolled`:
   per level, each exactly as wide as its level. A link reads its parent's value from the level
   before by a gather with a static index, and a parent sums its children's contributions the same
   way. There is no padding and no loop bookkeeping: the humanoid's contact step runs 1.8× faster
-  than by the scan (docs/benchmarks.md), for about 1.5 s more compile time.
+  than by the scan (docs/benchmarks.md), for 1.5–3 s more compile time.
 - Deeper trees (the long snakes) are walked by `lax.scan` over the padded level table
   (n_levels × width), so the compiled program does not grow with the depth. The scan carries
   only one level's values: a link finds its parent's value in the previous level through a
@@ -122,8 +122,8 @@ def scan_outward(topology: Topology, step, root_value, link_data, level_data=Non
     """Visit non-root links parents-first: value_i = step(value_parent(i), data_i[, level_i]).
 
     `root_value` is the root's value (no link axis); `link_data` has the n+1 link axis;
-    `level_data`, if given, is per-level values as `scan_inward` returns them. Returns the values of all links with the n+1 link axis (the root's row is
-    `root_value`, the dummy row is zero).
+    `level_data`, if given, is per-level values as `scan_inward` returns them. Returns the values
+    of all links with the n+1 link axis (the root's row is `root_value`, the dummy row is zero).
     """
     if unrolled(topology):
         return _outward_unrolled(topology, step, root_value, link_data, level_data)
