@@ -35,8 +35,10 @@ UNROLL_MAX_LEVELS = 8
 
 
 def unrolled(topology: Topology) -> bool:
-    """Whether the traversals walk this tree level by level in straight-line code (see above)."""
-    return 1 < topology.n_links and topology.levels.shape[0] <= UNROLL_MAX_LEVELS
+    """Whether the traversals walk this tree level by level in straight-line code (see above);
+    `Model.with_traversal(False)` asks for the scan, which compiles faster."""
+    return (topology.unrolled_traversal and 1 < topology.n_links
+            and topology.levels.shape[0] <= UNROLL_MAX_LEVELS)
 
 
 def level_links(topology: Topology) -> list[np.ndarray]:

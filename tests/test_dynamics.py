@@ -85,30 +85,30 @@ def test_aba_stays_accurate_on_a_195_dof_chain():
     assert relative_error(qdd32.astype(jnp.float64), expected) < 1e-3
 
 
-@pytest.mark.parametrize("name", ["deepmimic_humanoid", "deepmimic_dog", "snake10"])
-def test_unrolled_and_scanned_tree_traversals_agree(models, name, monkeypatch):
-    """`jaxsim.tree` walks shallow trees level by level in straight-line code and deep ones by a
-    scan over a padded level table; both give the same kinematics, ABA, MABA and RNEA."""
-    model = models[name]
+@pytest.mark.parametrize("name", ["deepmimic_humanoid", "deepmimic_dog"])
+def test_unrolled_and_scanned_tree_traversals_agree(models, name):
+    """`jaxsim.tree` walks shallow trees level by level in straight-line code, or by a scan over
+    a padded level table on request (`Model.with_traversal`); both give the same kinematics,
+    ABA, MABA and RNEA."""
+    model = with_random_gains(models[name], 8, root_gains=True)
     q, qd, target = random_state(model, 7)
-    model = with_random_gains(model, 8, root_gains=True)
     rng = np.random.default_rng(9)
     tau = jnp.asarray(rng.normal(scale=20.0, size=model.nv))
     f_ext = jnp.asarray(rng.normal(size=(model.n_links, 6)))
 
-    def everything():       # traced afresh on each call, so each call sees the current setting
-        return jax.jit(lambda m: (
-            kinematics.link_velocities(m, q, qd), dynamics.aba(m, q, qd, tau, f_ext),
-            dynamics.solve_spd(m, q, qd, target, DT, method="maba", f_ext=f_ext),
-            dynamics.rnea(m, q, qd, tau, f_ext)))(model)
+    @jax.jit
+    def everything(m):
+        return (kinematics.link_velocities(m, q, qd), dynamics.aba(m, q, qd, tau, f_ext),
+                dynamics.solve_spd(m, q, qd, target, DT, method="maba", f_ext=f_ext),
+                dynamics.rnea(m, q, qd, tau, f_ext))
 
     results = {}
-    for max_levels in (0, 1000):
-        monkeypatch.setattr(tree, "UNROLL_MAX_LEVELS", max_levels)
-        assert tree.unrolled(model.topology) == bool(max_levels)
-        results[max_levels] = everything()
-    for scanned, unrolled in zip(*(jax.tree.leaves(r) for r in results.values())):
-        assert relative_error(unrolled, scanned) < 1e-12
+    for unrolled in (False, True):
+        walked = model.with_traversal(unrolled)
+        assert tree.unrolled(walked.topology) == unrolled
+        results[unrolled] = everything(walked)
+    for scanned, straight in zip(*(jax.tree.leaves(r) for r in results.values())):
+        assert relative_error(straight, scanned) < 1e-12
 
 
 @pytest.mark.parametrize("name", ["humanoid", "quadruped", "snake10"])
