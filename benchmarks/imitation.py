@@ -49,8 +49,9 @@ def _timed(fn, *args, repeats):
 def update_floor(update, args, steps, size=2048):
     """The floating-point operations of one PPO update (`update` jitted, on `args`) and this
     machine's float32 matmul rate (a size × size product, median of 10): the update cannot run
-    faster than their ratio, however fast the simulation. XLA's cost analysis of the compiled update counts the body of a loop
-    once, so it gives one minibatch step (plus the advantages); times `steps` minibatch steps."""
+    faster than their ratio, however fast the simulation. XLA's cost analysis of the compiled
+    update counts the body of a loop once, so it gives one minibatch step (plus the advantages);
+    times `steps` minibatch steps."""
     flop = update.lower(*args).compile().cost_analysis()["flops"] * steps
     a = jnp.ones((size, size), jnp.float32)
     matmul_s, _ = _timed(jax.jit(jnp.matmul), a, a, repeats=10)
