@@ -60,6 +60,11 @@ def read_stored(path) -> dict:
 
 def load(path, schema, overrides=()):
     """Read the TOML file at `path` into `schema`, after applying `overrides` ("a.b=value")."""
+    return build(schema, read(path, overrides), str(path))
+
+
+def read(path, overrides=()) -> dict:
+    """The TOML file at `path` as nested dicts, with `overrides` ("a.b=value") applied."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -70,7 +75,7 @@ def load(path, schema, overrides=()):
         raise ConfigError(f"{path}: not valid TOML: {error}") from None
     for override in overrides:
         apply_override(data, override, path)
-    return build(schema, data, str(path))
+    return data
 
 
 def apply_override(data, override, source):

@@ -22,8 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents import train_commands
-from agents import config as config_io
+from agents.commands import train_commands
 from jaxsim import allocator, render, xla_options
 from jaxsim.atomic import write_text_atomic
 from spd import machine_info, reference_data
@@ -59,7 +58,7 @@ def update_floor(update, args, steps, size=2048):
 
 
 def speed(args):
-    config = config_io.load(CONFIG, train_commands.TrainConfig, args.set)
+    config = train_commands.load_config(CONFIG, args.set)
     trainer = train_commands.make_trainer(config, reference_data("deepmimic"))
     state = trainer.init()
     p = state.ppo
@@ -67,7 +66,7 @@ def speed(args):
     # The parts are timed as the iteration compiles them: with the simulator's XLA options.
     options = xla_options.simulation_options()
     rollout = jax.jit(trainer.rollout, compiler_options=options)
-    rollout_args = (trainer.env_params, state.runner, p.policy_params, p.value_params,
+    rollout_args = (trainer.env_params_for(state.curriculum), state.runner, p.policy_params, p.value_params,
                     state.norm, sigma, state.key)
     rollout_s, rollout_compile = _timed(rollout, *rollout_args, repeats=args.repeats)
     batch = rollout(*rollout_args)[1]

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import pvae_commands
+from agents.commands import pvae_commands
 from jaxsim import allocator, characters, motion, render
 from jaxsim.atomic import write_text_atomic
 from jaxsim.motion import retarget as rt

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agents.cli import main
+from agents.commands.cli import main
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.optimize import direct, maximize_lbfgs
 from bds.search import SearchError, SearchSettings, search
@@ -443,7 +443,7 @@ def test_takeoff_search_reports_a_damaged_log_and_lets_other_errors_through(
     with pytest.raises(SystemExit, match=f"{log}, line 3: not valid JSON"):
         main(["search", str(config), "--out", str(out_dir)])
     # Anything else is a bug: it keeps its traceback instead of becoming a one-line message.
-    from agents import strategy_search
+    from agents.commands import strategy_search
 
     def broken(*args, **kwargs):
         raise ValueError("a bug")

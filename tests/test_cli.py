@@ -5,7 +5,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from agents.cli import main
+from agents.commands.cli import main
 
 
 def run(argv, capsys):
@@ -117,6 +117,6 @@ def test_an_error_that_is_not_the_user_s_keeps_its_traceback(command, module, fu
     def broken(*args, **kwargs):
         raise ValueError("a bug, not a user error")
 
-    monkeypatch.setattr(importlib.import_module(f"agents.{module}"), function, broken)
+    monkeypatch.setattr(importlib.import_module(f"agents.commands.{module}"), function, broken)
     with pytest.raises(ValueError, match="a bug"):
         main(command)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from agents import config as config_io
-from agents.observations import body_observation, observation_size
+from agents.tasks.observations import body_observation, observation_size
 from agents.tasks.imitation import REWARD_TERMS, ImitationEnv, ImitationSettings
 from jaxsim import batch_last, kinematics, rotations
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from agents import config as config_io
-from agents.networks import PolicyNetwork, ValueNetwork, action_distribution, sigma_at
-from agents.ppo import (Batch, PPOSettings, RunningNorm, gae, make_ppo, policy_loss,
+from agents.rl.networks import PolicyNetwork, ValueNetwork, action_distribution, sigma_at
+from agents.rl.ppo import (Batch, PPOSettings, RunningNorm, gae, make_ppo, policy_loss,
                         td_lambda_targets)
 
 T, N = 7, 3

@@ -9,12 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agents import cli, train_commands, trainer as trainer_lib
+from agents.commands import cli, train_commands
+from agents.rl import trainer as trainer_lib
 from agents.checkpoint import CheckpointError
 from agents.config import ConfigError
-from agents.env import end_of_step, start_of_episode
-from agents.ppo import PPOSettings
-from agents.rollout import make_rollout, start_runner
+from agents.rl.env import end_of_step, start_of_episode
+from agents.rl.ppo import PPOSettings
+from agents.rl.rollout import make_rollout, start_runner
 from agents.tasks.reach import ReachEnv, ReachSettings
 
 CONFIG = "configs/reach.toml"

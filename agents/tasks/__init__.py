@@ -1,1 +1,1 @@
-"""Tasks: environments with pure `reset` and `step` (see `agents.env`)."""
+"""Tasks: environments with pure `reset` and `step` (see `agents.rl.env`)."""

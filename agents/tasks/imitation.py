@@ -19,14 +19,14 @@ Reward (Peng et al. 2018), against the clip at the time reached by the step:
 with θ_j the angle of q̂_j⁻¹ q_j, over the root's orientation and every actuated joint (the
 root is one of DeepMimic's joints, with weight 1 in humanoid3d.txt), ω_j the joints' velocities
 (the root's body-frame angular velocity and every joint's rate), the end effectors the ankles and
-wrists, and hats marking the reference. Episodes start at a random time of the clip, in the
+wrists by default (`end_effectors`), and hats marking the reference. Episodes start at a random time of the clip, in the
 clip's pose and velocity (reference state initialisation), and end early when a link other than
 the feet touches the ground (early termination) or the simulation blows up. With a clip that
 does not loop, an episode also ends when the clip is over (the reference time reaches its
 duration): a truncation, not a termination, since the character did not fail; it is a time limit
 like `episode_seconds`.
 
-The observation is `agents.observations.body_observation` followed, if asked, by the clip's
+The observation is `agents.tasks.observations.body_observation` followed, if asked, by the clip's
 phase φ ∈ [0, 1) as (sin 2πφ, cos 2πφ) (thesis §3.4.1; DeepMimic's policy sees the phase).
 """
 
@@ -38,14 +38,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from agents.config import ConfigError, check_positive
-from agents.env import TaskTiming, check_timing, end_of_step, start_of_episode
-from agents.observations import body_observation, observation_size
-from agents.pose_features import PoseLayout, exp_to_pose
+from agents.pose.pose_features import PoseLayout, exp_to_pose
+from agents.rl.env import TaskTiming, check_timing, end_of_step, start_of_episode
+from agents.tasks import common, registry
+from agents.tasks.observations import body_observation, observation_size
 from jaxsim import characters, kinematics, motion, rotations, simulation
 from jaxsim.dynamics import METHODS, pose_error
 from jaxsim.world import make_world
 
-END_EFFECTORS = ("right_ankle", "left_ankle", "right_wrist", "left_wrist")
 ACTION_MODES = ("residual", "absolute")
 TARGET_VELOCITIES = ("zero", "reference")
 REWARD_TERMS = ("pose", "velocity", "end_effector", "com")
@@ -73,6 +73,7 @@ class ImitationSettings(TaskTiming):
     k_end_effector: float = 40.0
     k_com: float = 10.0
     feet: tuple[str, ...] = ("right_ankle", "left_ankle")   # links allowed to touch the ground
+    end_effectors: tuple[str, ...] = ("right_ankle", "left_ankle", "right_wrist", "left_wrist")
     facing_invariant: bool = False
     phase_in_observation: bool = True
 
@@ -93,14 +94,6 @@ class ImitationSettings(TaskTiming):
                        allow_zero=True)
 
 
-def _data_file(name: str, folder: Path, key: str) -> Path:
-    """`name` in `folder` if it is there, else `name` as a path; a ConfigError naming `key`."""
-    for path in (folder / name, Path(name)):
-        if path.is_file():
-            return path
-    raise ConfigError(f"{key}: no file {name!r} in {folder} nor at that path")
-
-
 def _joint_dof_table(model) -> np.ndarray:
     """(J, 3) indices into a (nv + 1) vector of the rotational DoFs of each "joint" of the
     reward: the root's orientation, then every actuated joint; padded with nv (a zero entry)."""
@@ -119,7 +112,7 @@ def _padded(x):
 
 
 class ImitationEnv:
-    """A DeepMimic-style imitation task (see the module docstring) with the `agents.env.Env`
+    """A DeepMimic-style imitation task (see the module docstring) with the `agents.rl.env.Env`
     interface. `task` holds the clip time at which the episode started; the reference of control
     step k is the clip at start + k / control_hz.
 
@@ -129,22 +122,20 @@ class ImitationEnv:
     def __init__(self, settings: ImitationSettings, data_dir, dtype=jnp.float32):
         self.settings = settings
         deepmimic = Path(data_dir) / "deepmimic"
-        character = _data_file(settings.character, deepmimic / "characters", "character")
+        character = common.data_file(settings.character, deepmimic / "characters", "character")
         controller = deepmimic / "controllers" / f"{character.stem}_ctrl.txt"
         if not controller.is_file():
             raise ConfigError(f"character: no controller file {controller} for {character}")
         self.model = characters.load_deepmimic(character, controller, dtype=dtype)
         self.clip = motion.load_motion(
-            _data_file(settings.clip, deepmimic / "motions", "clip"), self.model)
+            common.data_file(settings.clip, deepmimic / "motions", "clip"), self.model)
         self.world = make_world(dtype=dtype)
         topo = self.model.topology
-        unknown = [name for name in settings.feet if name not in topo.names]
-        if unknown:
-            raise ConfigError(f"feet: unknown link {unknown[0]!r}; links: "
-                              f"{', '.join(topo.names)}")
-        self._may_touch = np.isin(np.array(topo.names), settings.feet)
+        self._may_touch = np.isin(np.arange(topo.n_links),
+                                  common.link_indices(self.model, settings.feet, "feet"))
         self._ground = self.world.object_index("ground")
-        self._end_effectors = np.array([topo.link_index(name) for name in END_EFFECTORS])
+        self._end_effectors = common.link_indices(self.model, settings.end_effectors,
+                                                  "end_effectors")
         self._joint_dofs = _joint_dof_table(self.model)
         self._revolute_q = topo.q_offsets[topo.links_of_type("revolute")]
         self.observation_size = observation_size(self.model) + 2 * settings.phase_in_observation
@@ -238,41 +229,30 @@ class ImitationEnv:
                                 jnp.zeros(len(self._joint_dofs), q.dtype), jnp.zeros((), bool))
         return start_of_episode(physics, self._observe(physics, start), key, start, metrics)
 
-    def _simulate(self, world, physics, target, target_velocity):
-        """`substeps` SPD steps towards `target` (and `target_velocity`: None for zero); also
-        which links touched the ground in any."""
-        s = self.settings
-
-        def substep(carry, _):
-            state, touched = carry
-            state = simulation.step(self.model, world, state, target, self.sim_dt, s.method,
-                                    target_velocity)
-            return (state, touched | state.touching[:, self._ground]), None
-
-        touched = jnp.zeros(self.model.n_links, bool)
-        (physics, touched), _ = jax.lax.scan(substep, (physics, touched), None,
-                                             length=s.substeps)
-        return physics, touched
-
     def step(self, params, state, action):
         """One control step: PD target from the action and the reference at the next control
         time, `substeps` simulation steps, reward against that reference, early termination
         (a non-foot link touched the ground, or a non-finite state, which is replaced by the
         state before the step and earns no reward), and truncation at the time limit or, for a
         clip that does not loop, once that time reaches the clip's duration."""
-        world = self.world.replace(gravity=params["gravity"])
+        world = common.world_of(self.world, params)
         dtype = self.clip.poses.dtype
         t = state.task + (state.steps + 1).astype(dtype) * self.control_dt
         q_ref, qd_ref = self.reference(t)
         target_velocity = qd_ref if self.settings.spd_target_velocity == "reference" else None
-        stepped, touched = self._simulate(world, state.physics, self.pd_target(q_ref, action),
-                                          target_velocity)
-        finite = simulation.is_finite(stepped)
-        physics = jax.tree_util.tree_map(lambda new, old: jnp.where(finite, new, old),
-                                         stepped, state.physics)
-        fell = jnp.any(touched & ~self._may_touch) | ~finite
+        stepped, touched = common.simulate_control_step(
+            self.model, world, state.physics, self.pd_target(q_ref, action), self.sim_dt,
+            self.settings.substeps, self.settings.method, target_velocity)
+        physics, finite = common.keep_finite(stepped, state.physics)
+        fell = jnp.any(touched[:, self._ground] & ~self._may_touch) | ~finite
         terms, angles = self.reward_terms(physics.q, physics.qd, q_ref, qd_ref)
         reward = jnp.where(finite, self.reward(terms), 0.0)
         clip_over = False if self.clip.loop else t >= self.clip.duration
         return end_of_step(state, physics, self._observe(physics, t), reward, fell, state.task,
                            self._metrics(terms, angles, fell), self.episode_steps, clip_over)
+
+
+registry.register(registry.Task(
+    "imitation", ImitationSettings, ImitationEnv,
+    # the character sets the networks' sizes, the phase the observation's
+    fixed_on_resume=("character", "phase_in_observation")))

@@ -13,7 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.env import TaskTiming, check_timing, end_of_step, start_of_episode
+from agents.rl.env import TaskTiming, check_timing, end_of_step, start_of_episode
+from agents.tasks import common, registry
 from jaxsim import kinematics, simulation
 from jaxsim.builder import LinkSpec, build_model
 from jaxsim.characters.common import Y_TO_X
@@ -87,16 +88,16 @@ class ReachEnv:
                                 {"distance": jnp.linalg.norm(self._tip(q) - goal)})
 
     def step(self, params, state, action):
-        world = self.world.replace(gravity=params["gravity"])
         target = self.settings.action_scale * action
-        dt = 1.0 / self.settings.sim_hz
-
-        def substep(physics, _):
-            return simulation.step(self.model, world, physics, target, dt, "maba"), None
-
-        physics, _ = jax.lax.scan(substep, state.physics, None, length=self.substeps)
+        physics, _ = common.simulate_control_step(
+            self.model, common.world_of(self.world, params), state.physics, target,
+            1.0 / self.settings.sim_hz, self.substeps, "maba")
         goal = state.task
         distance = jnp.linalg.norm(self._tip(physics.q) - goal)
         reward = jnp.exp(-(distance / REWARD_LENGTH) ** 2)
         return end_of_step(state, physics, self._observe(physics, goal), reward, False, goal,
                            {"distance": distance}, self.episode_steps)
+
+
+registry.register(registry.Task("reach", ReachSettings, lambda settings, _: ReachEnv(settings),
+                                needs_data=False))

@@ -14,9 +14,9 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from agents.env import Env, EnvState
-from agents.networks import action_distribution
-from agents.ppo import Batch, RunningNorm
+from agents.rl.env import Env, EnvState
+from agents.rl.networks import action_distribution
+from agents.rl.ppo import Batch, RunningNorm
 from jaxsim import batch_last
 
 
@@ -46,8 +46,10 @@ class Runner:
 jax.tree_util.register_dataclass(Runner, data_fields=["envs", "episode_return"], meta_fields=[])
 
 
-def start_runner(env: Env, params, key, n_envs: int) -> Runner:
-    envs = jax.vmap(env.reset, in_axes=(None, 0))(params, jax.random.split(key, n_envs))
+def start_runner(env: Env, params, key, n_envs: int, params_axis=None) -> Runner:
+    """`n_envs` environments, freshly reset; `params` shared (`params_axis` None) or one set per
+    environment (0)."""
+    envs = jax.vmap(env.reset, in_axes=(params_axis, 0))(params, jax.random.split(key, n_envs))
     return Runner(envs, jnp.zeros(n_envs, envs.reward.dtype))
 
 
@@ -59,13 +61,15 @@ def _select(done, fresh, stepped):
 
 
 def make_rollout(env: Env, policy_apply, value_apply, n_steps: int, deterministic=False,
-                 keep_physics=False):
+                 keep_physics=False, params_axis=None):
     """rollout(params, runner, policy_params, value_params, norm, sigma, key) ->
     (runner, batch, raw_obs, episodes, metrics, physics-or-None); see the module docstring.
-    The environments step with the batch as the innermost axis (`jaxsim.batch_last`), where the
-    simulator runs faster; their resets, once per control step, with `jax.vmap`."""
-    batched_step = batch_last.vmap(env.step, in_axes=(None, 0, 0))
-    batched_reset = jax.vmap(env.reset, in_axes=(None, 0))
+    `params` is shared by all environments (`params_axis` None) or has one set per environment
+    along axis 0 (`params_axis` 0). The environments step with the batch as the innermost axis
+    (`jaxsim.batch_last`), where the simulator runs faster; their resets, once per control
+    step, with `jax.vmap`."""
+    batched_step = batch_last.vmap(env.step, in_axes=(params_axis, 0, 0))
+    batched_reset = jax.vmap(env.reset, in_axes=(params_axis, 0))
 
     def rollout(params, runner: Runner, policy_params, value_params, norm: RunningNorm, sigma,
                 key):

@@ -1,9 +1,12 @@
 """`takeoff train`, `takeoff eval` and `takeoff plot`: training runs from TOML configs.
 
-A run directory holds the resolved config (`config.json`), `metrics.jsonl` (one line per
-iteration), `checkpoint.msgpack` (written atomically) and `learning_curve.png`. A resumed run
-may change how long it runs, its learning settings and its task's settings with `--set`, but
-not what its checkpoint fixes (`FIXED_ON_RESUME`).
+A config has three sections: `[run]` (which task, how many environments, how long), `[ppo]`,
+and the section of its task, named after it (`[imitation]`, `[reach]`, `[highjump]`, …; the
+tasks are registered in `agents.tasks.registry`). A run directory holds the resolved config
+(`config.json`), `metrics.jsonl` (one line per iteration), `checkpoint.msgpack` (written
+atomically) and `learning_curve.png`. A resumed run may change how long it runs, its learning
+settings and its task's settings with `--set`, but not what its checkpoint fixes (`[run]`'s
+`RunSettings.SHAPING`, `ppo.hidden`, and the keys its task declares in `fixed_on_resume`).
 """
 
 import dataclasses
@@ -11,41 +14,42 @@ import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
 
 from agents import config as config_io
-from agents import trainer as trainer_lib
+from agents.rl import trainer as trainer_lib
 from agents.datadir import data_dir_from
-from agents.ppo import PPOSettings
-from agents.rollout import make_rollout, start_runner
-from agents.tasks.imitation import ImitationEnv, ImitationSettings
-from agents.tasks.reach import ReachEnv, ReachSettings
-from agents.trainer import RunSettings
+from agents.rl.ppo import PPOSettings
+from agents.rl.rollout import make_rollout, start_runner
+from agents.rl.trainer import RunSettings
+from agents.tasks import registry
 from jaxsim import xla_options
 from jaxsim.atomic import write_text_atomic
 
-TASKS = ("imitation", "reach")
 CONFIG = "config.json"
 CURVE = "learning_curve.png"
-# Keys a resumed run cannot change: the seed (the checkpoint holds the PRNG state), the rollout's
-# size, and what sets the networks' input and output sizes and hidden layers.
-FIXED_ON_RESUME = (*(f"run.{name}" for name in RunSettings.SHAPING), "ppo.hidden",
-                   "imitation.character", "imitation.phase_in_observation")
 
 
 @dataclass(frozen=True)
 class TrainConfig:
+    """A training config: `[run]`, `[ppo]` and `task`, the settings of the section named by
+    `run.task` (an instance of that task's registered settings dataclass)."""
+
     run: RunSettings = field(default_factory=RunSettings)
     ppo: PPOSettings = field(default_factory=PPOSettings)
-    imitation: ImitationSettings = field(default_factory=ImitationSettings)
-    reach: ReachSettings = field(default_factory=ReachSettings)
+    task: Any = None
 
     def __post_init__(self):
-        if self.run.task not in TASKS:
-            raise ValueError(f"run.task must be one of {', '.join(TASKS)}; got "
-                             f"{self.run.task!r}")
+        if not self.run.task:
+            raise ValueError(f"run.task must name the task to train: one of "
+                             f"{', '.join(registry.names())}")
+        entry = registry.get(self.run.task)
+        if not isinstance(self.task, entry.settings):
+            raise ValueError(f"the [{self.run.task}] settings must be a "
+                             f"{entry.settings.__name__}; got {type(self.task).__name__}")
         run, minibatch = self.run, self.ppo.minibatch_size
         if run.samples_per_iteration < minibatch:
             raise ValueError(f"run.envs × run.steps_per_iteration = {run.envs} × "
@@ -53,11 +57,67 @@ class TrainConfig:
                              f"per iteration, fewer than one minibatch (ppo.minibatch_size = "
                              f"{minibatch})")
 
+    @property
+    def entry(self) -> registry.Task:
+        return registry.get(self.run.task)
+
+    def sections(self) -> dict:
+        """The config as nested dicts, its task's section under the task's name (config.json)."""
+        return {"run": dataclasses.asdict(self.run), "ppo": dataclasses.asdict(self.ppo),
+                self.run.task: dataclasses.asdict(self.task)}
+
+    @property
+    def fixed_on_resume(self) -> tuple[str, ...]:
+        """Keys a resumed run cannot change: the seed (the checkpoint holds the PRNG state), the
+        rollout's size, the hidden layers, and what the task says fixes its networks' sizes."""
+        return (*(f"run.{name}" for name in RunSettings.SHAPING), "ppo.hidden",
+                *(f"{self.run.task}.{name}" for name in self.entry.fixed_on_resume))
+
+
+@dataclass(frozen=True)
+class _Sections:
+    run: RunSettings = field(default_factory=RunSettings)
+    ppo: PPOSettings = field(default_factory=PPOSettings)
+
+
+def build_config(data: dict, source) -> TrainConfig:
+    """A TrainConfig from the nested dict of a TOML file or config.json; a ConfigError naming
+    `source` and the key for anything wrong, an unknown section included."""
+    if not isinstance(data, dict):
+        raise config_io.ConfigError(f"{source}: the file must be a table")
+    run_data = data.get("run", {})
+    task = run_data.get("task") if isinstance(run_data, dict) else None
+    if not task:
+        raise config_io.ConfigError(f"{source}: [run]: run.task must name the task to train: "
+                                    f"one of {', '.join(registry.names())}")
+    if not isinstance(task, str):
+        raise config_io.ConfigError(f"{source}: key 'run.task' must be a str; got {task!r}")
+    try:
+        entry = registry.get(task)
+    except ValueError as error:
+        raise config_io.ConfigError(f"{source}: [run]: {error}") from None
+    unknown = sorted(set(data) - {"run", "ppo", task})
+    if unknown:
+        raise config_io.ConfigError(
+            f"{source}: unknown section {unknown[0]!r}; a config for the task {task!r} takes "
+            f"[run], [ppo] and [{task}]")
+    sections = config_io.build(_Sections, {k: data[k] for k in ("run", "ppo") if k in data},
+                               source)
+    settings = config_io.build(entry.settings, data.get(task, {}), source, f"{task}.")
+    try:
+        return TrainConfig(sections.run, sections.ppo, settings)
+    except ValueError as error:
+        raise config_io.ConfigError(f"{source}: config: {error}") from None
+
+
+def load_config(path, overrides=()) -> TrainConfig:
+    """The training config in the TOML file `path`, with `--set` overrides."""
+    return build_config(config_io.read(path, overrides), path)
+
 
 def make_env(config: TrainConfig, data_dir=None):
-    if config.run.task == "reach":
-        return ReachEnv(config.reach)
-    return ImitationEnv(config.imitation, data_dir_from(data_dir))
+    entry = config.entry
+    return entry.make_env(config.task, data_dir_from(data_dir) if entry.needs_data else None)
 
 
 def make_trainer(config: TrainConfig, data_dir=None) -> trainer_lib.Trainer:
@@ -88,7 +148,7 @@ def load_run_config(run_dir) -> TrainConfig:
     path = Path(run_dir) / CONFIG
     if not path.exists():
         raise config_io.ConfigError(f"{path}: missing; is {run_dir} a training run directory?")
-    return config_io.build(TrainConfig, config_io.read_stored(path), str(path))
+    return build_config(config_io.read_stored(path), str(path))
 
 
 def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=None,
@@ -102,7 +162,7 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
             config = _resume_overrides(config, overrides, source)
     else:
         source = config_path
-        config = config_io.load(config_path, TrainConfig, overrides)
+        config = load_config(config_path, overrides)
         run_dir = config_io.run_directory(
             config_path, out_dir, lambda d: (d / trainer_lib.CHECKPOINT).exists(),
             "resume it with `takeoff train --resume {run_dir}` or pick another --out")
@@ -116,7 +176,7 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
         done = 0                                  # a run that died before its first checkpoint
     run_dir.mkdir(parents=True, exist_ok=True)    # left lines that do not count
     trainer_lib.trim_metrics(run_dir, done)
-    write_text_atomic(run_dir / CONFIG, json.dumps(dataclasses.asdict(config), indent=2) + "\n")
+    write_text_atomic(run_dir / CONFIG, json.dumps(config.sections(), indent=2) + "\n")
     s = config.run
     echo(f"training {s.task}: {s.envs} environments × {s.steps_per_iteration} steps = "
          f"{s.samples_per_iteration} samples per iteration, {s.iterations} iterations → {run_dir}")
@@ -129,20 +189,24 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
 
 def _resume_overrides(config: TrainConfig, overrides, source) -> TrainConfig:
     """The config of a resumed run with `overrides` applied; a ConfigError if one changes a key
-    of `FIXED_ON_RESUME`."""
-    data = json.loads(json.dumps(dataclasses.asdict(config)))    # tuples become lists
+    of its `fixed_on_resume`."""
+    data = json.loads(json.dumps(config.sections()))    # tuples become lists
     for override in overrides:
         config_io.apply_override(data, override, source)
-    changed = config_io.build(TrainConfig, data, str(source))
-    for key in FIXED_ON_RESUME:
-        section, name = key.split(".")
-        before, after = (getattr(getattr(c, section), name) for c in (config, changed))
+    changed = build_config(data, str(source))
+    for key in config.fixed_on_resume:
+        before, after = (_get(c.sections(), key) for c in (config, changed))
         if before != after:
             raise config_io.ConfigError(
                 f"{source}: {key} cannot change when a run is resumed (the run has {before!r}, "
                 f"the override gives {after!r}): its checkpoint fixes it; start a new run "
                 f"instead")
     return changed
+
+
+def _get(sections, key):
+    section, name = key.split(".")
+    return sections[section][name]
 
 
 def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=print):
@@ -152,15 +216,17 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     config = load_run_config(run_dir)
     trainer = _trainer_for(config, Path(run_dir) / CONFIG, data_dir)
     state = trainer_lib.load_checkpoint(trainer.init(), run_dir)
-    env = trainer.env
+    env = trainer.env_for(state.curriculum)          # at the run's difficulty
+    params = trainer.env_params_for(state.curriculum, episodes)
     rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply,
-                                   env.episode_steps, deterministic=True, keep_physics=True),
+                                   env.episode_steps, deterministic=True, keep_physics=True,
+                                   params_axis=0),
                       compiler_options=xla_options.simulation_options())
     start_key, rollout_key = jax.random.split(jax.random.PRNGKey(config.run.seed + 1))
-    runner = start_runner(env, trainer.env_params, start_key, episodes)
+    runner = start_runner(env, params, start_key, episodes, params_axis=0)
     p = state.ppo
     _, batch, _, records, metrics, physics = rollout(
-        trainer.env_params, runner, p.policy_params, p.value_params, state.norm,
+        params, runner, p.policy_params, p.value_params, state.norm,
         trainer.sigma(p.samples), rollout_key)
     first = _first_episode_mask(np.asarray(records.ended))
     steps = first.sum(0)

@@ -13,8 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents import pose_dataset, pose_features
-from agents.pvae import (PVAE, PoseDecoder, PVAEConfig, TrainResult, composite_target,
+from agents.pose import pose_dataset, pose_features
+from agents.pose.pvae import (PVAE, PoseDecoder, PVAEConfig, TrainResult, composite_target,
                          network_of)
 from jaxsim.atomic import write_text_atomic
 from jaxsim.model import Model

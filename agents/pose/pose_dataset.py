@@ -3,7 +3,7 @@
 Sources, read from the data directory the user names (never copied into the repository):
 CMU subjects 01–03 (ASF/AMC, 120 Hz, retargeted with `jaxsim.motion.retarget.CMU_ASF`) and the
 DeepMimic humanoid clips. Every clip is resampled at 30 Hz (looping clips for one cycle) and every
-pose becomes the encoder features and the decoder target of `agents.pose_features`. Each pose
+pose becomes the encoder features and the decoder target of `agents.pose.pose_features`. Each pose
 keeps the index of its clip, so a validation split can hold out whole clips.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from agents import pose_features
+from agents.pose import pose_features
 from jaxsim import motion
 from jaxsim.atomic import atomic_path
 from jaxsim.model import Model

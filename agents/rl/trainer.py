@@ -9,6 +9,14 @@ the iteration 1.44× faster (docs/benchmarks.md, PPO "Throughput"). `TrainState`
 everything that evolves (networks, optimisers, observation statistics, environments, PRNG key),
 so a checkpoint is one msgpack file and resuming from it continues bit for bit.
 
+A task's curriculum (`agents.rl.curriculum`, the env's `curriculum` attribute) is part of that
+state: the iteration gives the environments the task parameters of the current difficulty, and
+advances the difficulty by the iteration's reward, inside the compiled function. The task
+parameters go to the environments one set per environment (`env_params` broadcast along the
+batch, or given per environment with `params_per_env`), so they may differ within a batch. A
+curriculum whose schedule changes something that shapes the program (the control rate) names it
+by a static key: the trainer compiles one iteration per key, with the env's `variant(key)`.
+
 The Python loop in `run` only logs (`metrics.jsonl`, one line per iteration), shows progress,
 checkpoints atomically every `checkpoint_every` iterations and at the end, and on Ctrl-C saves
 a checkpoint before it stops. Each iteration also reports one flag, computed in the compiled
@@ -18,20 +26,23 @@ quantities, and saves nothing, so the last checkpoint (of finite weights) is kep
 """
 
 import copy
+import functools
 import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import flax.serialization
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents import rollout as rollout_lib
 from agents.checkpoint import fill, read_msgpack
-from agents.networks import sigma_at
-from agents.ppo import PPOSettings, PPOState, RunningNorm, make_ppo
+from agents.rl import curriculum as curriculum_lib
+from agents.rl import rollout as rollout_lib
+from agents.rl.networks import sigma_at
+from agents.rl.ppo import PPOSettings, PPOState, RunningNorm, make_ppo
 from jaxsim import xla_options
 from jaxsim.atomic import atomic_path
 
@@ -48,7 +59,7 @@ class TrainingError(ValueError):
 class RunSettings:
     """The `[run]` config section: the size and length of a training run."""
 
-    task: str = "imitation"
+    task: str = ""                    # the task's registered name (agents.tasks.registry)
     envs: int = 256                   # environments stepped in parallel
     steps_per_iteration: int = 16     # control steps per environment per iteration
     iterations: int = 1000
@@ -80,24 +91,30 @@ class TrainState:
     norm: RunningNorm
     runner: rollout_lib.Runner
     key: jax.Array
+    curriculum: Any = None    # the task curriculum's state (`agents.rl.curriculum`)
 
 
-jax.tree_util.register_dataclass(TrainState, data_fields=["ppo", "norm", "runner", "key"],
-                                 meta_fields=[])
+jax.tree_util.register_dataclass(
+    TrainState, data_fields=["ppo", "norm", "runner", "key", "curriculum"], meta_fields=[])
 
 
 class Trainer:
     """One training setup: the networks and PPO (`ppo`), the rollout, `init` and the jitted
-    `iteration`."""
+    `iteration` (one compiled program per static key of the curriculum)."""
 
-    def __init__(self, env, env_params, run: RunSettings, ppo: PPOSettings):
+    def __init__(self, env, env_params, run: RunSettings, ppo: PPOSettings,
+                 params_per_env: bool = False):
         self.env, self.env_params, self.run_settings, self.ppo_settings = env, env_params, run, ppo
+        self.params_per_env = params_per_env
+        self.curriculum = getattr(env, "curriculum", None) or curriculum_lib.NoCurriculum()
         self.ppo = make_ppo(env.observation_size, env.action_size, ppo)
         self.policy_apply, self.value_apply = self.ppo.policy_apply, self.ppo.value_apply
-        self.rollout = rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
-                                                run.steps_per_iteration)
-        self.iteration = jax.jit(self._iteration,
-                                 compiler_options=xla_options.simulation_options())
+        self.rollout = self._rollout_of(env)
+        self._compiled = {}
+
+    def _rollout_of(self, env):
+        return rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
+                                        self.run_settings.steps_per_iteration, params_axis=0)
 
     def with_run_settings(self, run: RunSettings) -> "Trainer":
         """The same compiled trainer with other loop settings (iterations, checkpointing);
@@ -112,28 +129,59 @@ class Trainer:
         s = self.ppo_settings
         return sigma_at(samples, s.sigma_start, s.sigma_end, s.sigma_horizon)
 
+    def env_params_for(self, curriculum_state, envs: int | None = None):
+        """The task parameters of each environment (a leading axis of `envs`, default the run's)
+        under the curriculum's state."""
+        envs = self.run_settings.envs if envs is None else envs
+        params = self.curriculum.params(self.env_params, curriculum_state)
+        if self.params_per_env:
+            return params
+        return jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (envs, *jnp.shape(x))),
+                                      params)
+
+    def env_for(self, curriculum_state):
+        """The environment the curriculum's state is trained in (its static variant)."""
+        key = self.curriculum.static_key(curriculum_lib.host(curriculum_state))
+        return self.env if key is None else self.env.variant(key)
+
     def init(self) -> TrainState:
         key = jax.random.PRNGKey(self.run_settings.seed)
         ppo_key, env_key, key = jax.random.split(key, 3)
-        runner = rollout_lib.start_runner(self.env, self.env_params, env_key,
-                                          self.run_settings.envs)
+        curriculum = self.curriculum.init()
+        runner = rollout_lib.start_runner(self.env, self.env_params_for(curriculum), env_key,
+                                          self.run_settings.envs, params_axis=0)
         norm = RunningNorm.zeros(self.env.observation_size, runner.envs.obs.dtype)
-        return TrainState(self.ppo.init(ppo_key, runner.envs.obs.dtype), norm, runner, key)
+        return TrainState(self.ppo.init(ppo_key, runner.envs.obs.dtype), norm, runner, key,
+                          curriculum)
 
-    def _iteration(self, state: TrainState):
-        """One iteration: (the next state, its metrics, whether what it computed is finite)."""
+    def iteration(self, state: TrainState):
+        """One iteration, compiled (once per static key of the curriculum):
+        (the next state, its metrics, whether what it computed is finite)."""
+        key = self.curriculum.static_key(curriculum_lib.host(state.curriculum))
+        if key not in self._compiled:
+            env = self.env if key is None else self.env.variant(key)
+            self._compiled[key] = jax.jit(
+                functools.partial(self._iteration, self._rollout_of(env)),
+                compiler_options=xla_options.simulation_options())
+        return self._compiled[key](state)
+
+    def _iteration(self, rollout, state: TrainState):
         key, rollout_key, update_key = jax.random.split(state.key, 3)
         p = state.ppo
-        runner, batch, raw_obs, episodes, env_metrics, _ = self.rollout(
-            self.env_params, state.runner, p.policy_params, p.value_params, state.norm,
-            self.sigma(p.samples), rollout_key)
+        runner, batch, raw_obs, episodes, env_metrics, _ = rollout(
+            self.env_params_for(state.curriculum), state.runner, p.policy_params,
+            p.value_params, state.norm, self.sigma(p.samples), rollout_key)
         norm = state.norm.update(raw_obs)
         ppo_state, metrics = self.ppo.update(p, batch, update_key)
         mean_return, mean_length, finished = rollout_lib.episode_summary(episodes)
+        curriculum = self.curriculum.update(state.curriculum,
+                                            jnp.where(finished > 0, mean_return, 0.0))
         metrics = {**metrics, "return": mean_return, "episode_length": mean_length,
                    "episodes": finished, "reward": jnp.mean(batch.reward),
-                   **{f"env/{k}": jnp.mean(v) for k, v in env_metrics.items()}}
-        state = TrainState(ppo_state, norm, runner, key)
+                   **{f"env/{k}": jnp.mean(v) for k, v in env_metrics.items()},
+                   **{f"curriculum/{k}": v
+                      for k, v in self.curriculum.metrics(curriculum).items()}}
+        state = TrainState(ppo_state, norm, runner, key, curriculum)
         return state, metrics, _all_finite(_watched(state, metrics))
 
 

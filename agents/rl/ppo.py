@@ -5,7 +5,7 @@ surrogate E[min(ρ A, clip(ρ, 1 − ε, 1 + ε) A)], ρ = π(a|s) / π_old(a|s)
 minibatches drawn from one batch of experience. Advantages are GAE(λ) (Schulman et al. 2016,
 "High-Dimensional Continuous Control Using Generalized Advantage Estimation"); the value network
 regresses the TD(λ) targets A + V, which are the λ-returns. The policy's σ is not learned: it is
-annealed with the number of samples seen (`agents.networks.sigma_at`). Policy and value have
+annealed with the number of samples seen (`agents.rl.networks.sigma_at`). Policy and value have
 their own Adam optimisers and learning rates.
 
 `make_ppo(obs_size, action_size, settings)` gives the networks' apply functions,
@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import optax
 
 from agents.config import check_positive
-from agents.networks import PolicyNetwork, ValueNetwork, action_distribution, sigma_at
+from agents.rl.networks import PolicyNetwork, ValueNetwork, action_distribution, sigma_at
 
 _ADVANTAGE_EPS = 1e-8
 _VARIANCE_EPS = 1e-8

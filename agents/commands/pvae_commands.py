@@ -4,7 +4,7 @@ import time
 from pathlib import Path
 
 from agents import config as config_io
-from agents import pose_dataset, pvae, pvae_report
+from agents.pose import pose_dataset, pvae, pvae_report
 from jaxsim import characters
 
 PCA_SHARE = 0.85

@@ -1,14 +1,14 @@
 """The Pose VAE (P-VAE, thesis §3.4.2) and the composite action it defines (eq. 3.4).
 
-A β-VAE over the pose features of `agents.pose_features`: the encoder (two tanh layers of 256) maps
+A β-VAE over the pose features of `agents.pose.pose_features`: the encoder (two tanh layers of 256) maps
 the standardised features of a pose to the mean and log-variance of a 13-D Gaussian; the decoder
 (two tanh layers of 256) maps a latent to the standardised decoder target, the joint rotations
 that become PD targets. The loss per pose is the mean squared error of the standardised target
 plus β times the KL divergence of the posterior from N(0, I) (β = 1e-5), trained with Adam.
 
 The policy acts in the latent space: a PD target is decode(a_latent) + a_offset, the offset added
-in exponential coordinates (eq. 3.4), and r_naturalness = 1 − clip(‖a_offset‖₁ / c_offset, 0, 1)
-rewards small offsets. `PoseDecoder` carries what that needs (decoder weights and the target
+in exponential coordinates, and r_naturalness = 1 − clip((‖a_offset‖₁ / c_offset)², 0, 1)
+(eq. 3.4) rewards small offsets. `PoseDecoder` carries what that needs (decoder weights and the target
 normalisation) as a pytree, so both are jittable and differentiable.
 """
 
@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from agents import pose_dataset, pose_features
+from agents.pose import pose_dataset, pose_features
 from agents import config as config_io
 from agents.checkpoint import CheckpointError, fill, read_msgpack
 from jaxsim.atomic import atomic_path, write_text_atomic
@@ -258,8 +258,13 @@ def composite_target(model: Model, decoder: PoseDecoder, latent, offset, root=No
 
 
 def naturalness(offset, c_offset):
-    """r_naturalness = 1 − clip(‖offset‖₁ / c_offset, 0, 1)."""
-    return 1.0 - jnp.clip(jnp.sum(jnp.abs(offset), axis=-1) / c_offset, 0.0, 1.0)
+    """Eq. 3.4: r_naturalness = 1 − clip((‖offset‖₁ / c_offset)², 0, 1) of offsets (..., k)."""
+    return naturalness_of_norm(jnp.sum(jnp.abs(offset), axis=-1), c_offset)
+
+
+def naturalness_of_norm(offset_norm, c_offset):
+    """Eq. 3.4 of a given ‖offset‖₁: for a sparse task the episode's mean norm (§3.4.2)."""
+    return 1.0 - jnp.clip((offset_norm / c_offset) ** 2, 0.0, 1.0)
 
 
 # ---- Files ------------------------------------------------------------------------------------

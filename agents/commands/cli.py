@@ -59,7 +59,7 @@ def _cmd_mjcf(args):
 
 
 def _cmd_search(args):
-    from agents import strategy_search
+    from agents.commands import strategy_search
     from agents.config import ConfigError
     from bds.search import SearchError
 
@@ -70,9 +70,9 @@ def _cmd_search(args):
 
 
 def _cmd_pvae_dataset(args):
-    from agents import pvae_commands
+    from agents.commands import pvae_commands
     from agents.datadir import DataDirError, data_dir_from
-    from agents.pose_dataset import DatasetError
+    from agents.pose.pose_dataset import DatasetError
     from jaxsim.motion import MotionFileError
 
     try:
@@ -82,9 +82,9 @@ def _cmd_pvae_dataset(args):
 
 
 def _cmd_pvae_train(args):
-    from agents import pvae_commands
+    from agents.commands import pvae_commands
     from agents.config import ConfigError
-    from agents.pose_dataset import DatasetError
+    from agents.pose.pose_dataset import DatasetError
 
     try:
         pvae_commands.train(args.config, args.out, args.set)
@@ -98,7 +98,7 @@ def _run_errors():
     from agents.checkpoint import CheckpointError
     from agents.config import ConfigError
     from agents.datadir import DataDirError
-    from agents.trainer import TrainingError
+    from agents.rl.trainer import TrainingError
     from jaxsim.model import ModelError
     from jaxsim.motion import MotionFileError
 
@@ -106,7 +106,7 @@ def _run_errors():
 
 
 def _cmd_train(args):
-    from agents import train_commands
+    from agents.commands import train_commands
 
     if (args.config is None) == (args.resume is None):
         raise SystemExit("takeoff train: give a CONFIG to start a run or --resume DIR, not both")
@@ -119,7 +119,7 @@ def _cmd_train(args):
 
 
 def _cmd_eval(args):
-    from agents import train_commands
+    from agents.commands import train_commands
 
     try:
         train_commands.evaluate(args.run_dir, args.episodes, args.render, args.data_dir)
@@ -128,7 +128,7 @@ def _cmd_eval(args):
 
 
 def _cmd_plot(args):
-    from agents import train_commands
+    from agents.commands import train_commands
 
     path = train_commands.plot(args.run_dir)
     if path is None:

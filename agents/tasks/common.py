@@ -1,0 +1,61 @@
+"""Pieces every simulated task shares: data files, link names, the task parameters that go into
+the world, control steps of simulation substeps with touch bookkeeping, and the guard that keeps
+a non-finite state out of an episode."""
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from agents.config import ConfigError
+from jaxsim import simulation
+
+# Task parameters (the `params` pytree of an env) that are `World` fields by the same name.
+WORLD_PARAMS = ("gravity", "friction", "contact_stiffness", "contact_damping")
+
+
+def data_file(name: str, folder: Path, key: str) -> Path:
+    """`name` in `folder` if it is there, else `name` as a path; a ConfigError naming `key`."""
+    for path in (Path(folder) / name, Path(name)):
+        if path.is_file():
+            return path
+    raise ConfigError(f"{key}: no file {name!r} in {folder} nor at that path")
+
+
+def link_indices(model, names, key: str) -> np.ndarray:
+    """The indices of the links `names` in `model`; a ConfigError naming `key` and listing the
+    model's links for a name it does not have."""
+    topo = model.topology
+    unknown = [name for name in names if name not in topo.names]
+    if unknown:
+        raise ConfigError(f"{key}: unknown link {unknown[0]!r}; links: {', '.join(topo.names)}")
+    return np.array([topo.link_index(name) for name in names], int)
+
+
+def world_of(world, params):
+    """`world` with the task parameters that are world fields (`WORLD_PARAMS`) taken from
+    `params`, so a sweep or a curriculum can change them without rebuilding anything."""
+    return world.replace(**{name: params[name] for name in WORLD_PARAMS if name in params})
+
+
+def simulate_control_step(model, world, physics, target, dt, substeps: int, method: str,
+                          target_velocity=None):
+    """`substeps` simulation steps of dt towards the PD `target` (a `lax.scan`); returns the
+    state and which link touched which object in any of them ((n_links, n_objects) bools)."""
+    def substep(carry, _):
+        state, touched = carry
+        state = simulation.step(model, world, state, target, dt, method, target_velocity)
+        return (state, touched | state.touching), None
+
+    touched = jnp.zeros(physics.touching.shape, bool)
+    (physics, touched), _ = jax.lax.scan(substep, (physics, touched), None, length=substeps)
+    return physics, touched
+
+
+def keep_finite(stepped, before):
+    """(`stepped` where it is finite, else `before`; whether it was finite): a step that blew up
+    ends its episode in the last good state instead of carrying NaNs into the batch."""
+    finite = simulation.is_finite(stepped)
+    kept = jax.tree_util.tree_map(lambda new, old: jnp.where(finite, new, old), stepped, before)
+    return kept, finite
