@@ -245,7 +245,9 @@ def contact_forces(model: Model, world: World, rot_w, pos_w, v_body, stretch, dt
     def tangential(u):
         return u - jnp.sum(u * n, -1, keepdims=True) * n
 
-    limit = world.friction * f_n
+    friction = world.friction if jnp.ndim(world.friction) == 0 else \
+        world.friction[np.asarray(layout.obj)]                          # one per object
+    limit = friction * f_n
     v_t = tangential(v)
     stretch = _clip_norm(tangential(stretch) + dt * v_t,              # slides past μ f_n / k_t
                          limit / world.tangent_stiffness)

@@ -38,7 +38,8 @@ class World:
 
     Contact (per contact point; thesis-free, a standard compliant model):
       contact_stiffness, contact_damping   normal spring k [N/m] and damper c [N·s/m]
-      friction                              Coulomb coefficient μ
+      friction                              Coulomb coefficient μ: one for every object, or
+                                            one per object (ground, then the boxes in order)
       tangent_stiffness, tangent_damping    the stick spring that holds a contact in place until
                                             its force exceeds μ·f_n (then it slides)
     Joint limits: limit_stiffness [N·m/rad], limit_damping [N·m·s/rad] of the penalty torques.
@@ -130,12 +131,16 @@ def make_world(gravity=DEFAULT_GRAVITY, ground: bool = True, ground_normal=(0.0,
                              f"got {box.half_size!r}")
         if np.shape(box.center) != (3,):
             raise ValueError(f"box {box.name!r}: center must be 3 numbers, got {box.center!r}")
+    friction = np.asarray(friction, float)
+    if friction.ndim and friction.shape != (len(boxes) + 1,):
+        raise ValueError(f"friction must be one number or one per object (ground and "
+                         f"{len(boxes)} boxes); got {friction.tolist()}")
     scalars = dict(contact_stiffness=contact_stiffness, contact_damping=contact_damping,
                    friction=friction, tangent_stiffness=tangent_stiffness,
                    tangent_damping=tangent_damping, limit_stiffness=limit_stiffness,
                    limit_damping=limit_damping)
     for key, value in scalars.items():
-        if not (np.isfinite(value) and value >= 0):
+        if not np.all(np.isfinite(value) & (np.asarray(value) >= 0)):
             raise ValueError(f"{key} must be a finite non-negative number, got {value!r}")
     if not tangent_stiffness > 0:
         raise ValueError(f"tangent_stiffness must be positive, got {tangent_stiffness!r}")

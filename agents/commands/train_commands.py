@@ -228,22 +228,32 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     _, batch, _, records, metrics, physics = rollout(
         params, runner, p.policy_params, p.value_params, state.norm,
         trainer.sigma(p.samples), rollout_key)
-    first = _first_episode_mask(np.asarray(records.ended))
+    ended = np.asarray(records.ended)
+    first = _first_episode_mask(ended)
     steps = first.sum(0)
+    at_end = first * ended                     # the step where each first episode ended
     summary = {"episodes": episodes,
                "return": float(np.mean((np.asarray(batch.reward) * first).sum(0))),
                "episode_length": float(steps.mean()),
                "terminated": float((np.asarray(batch.terminated) * first).any(0).mean()),
-               **{k: float(np.sum(np.asarray(v) * first) / max(first.sum(), 1))
+               **{k: _mean(np.asarray(v), at_end if k.startswith("episode/") else first)
                   for k, v in metrics.items()}}
     echo(json.dumps(summary, indent=2))
     poses = np.asarray(physics.q)[:int(steps[0]), 0]
     if render_path is not None:
         from jaxsim import render
-        render.animation(env.model, poses, render_path, world=env.world,
+        world = (env.world_for(jax.tree_util.tree_map(lambda x: x[0], runner.envs.task))
+                 if hasattr(env, "world_for") else env.world)
+        render.animation(env.model, poses, render_path, world=world,
                          fps=1.0 / env.control_dt)
         echo(f"animation of episode 0 ({len(poses)} steps) → {render_path}")
     return summary, env, poses
+
+
+def _mean(values, mask):
+    """The mean of `values` where `mask` is 1 (None, JSON's null, where it is nowhere)."""
+    count = mask.sum()
+    return float((values * mask).sum() / count) if count else None
 
 
 def _first_episode_mask(ended):

@@ -178,11 +178,26 @@ class Trainer:
                                             jnp.where(finished > 0, mean_return, 0.0))
         metrics = {**metrics, "return": mean_return, "episode_length": mean_length,
                    "episodes": finished, "reward": jnp.mean(batch.reward),
-                   **{f"env/{k}": jnp.mean(v) for k, v in env_metrics.items()},
+                   **env_means(env_metrics, episodes.ended),
                    **{f"curriculum/{k}": v
                       for k, v in self.curriculum.metrics(curriculum).items()}}
         state = TrainState(ppo_state, norm, runner, key, curriculum)
         return state, metrics, _all_finite(_watched(state, metrics))
+
+
+def env_means(env_metrics, ended) -> dict:
+    """The environments' metrics (T, N) as `env/<name>` means: over all steps, or for a metric
+    named `episode/<name>` (a value that means something where an episode ends) over the steps
+    where an episode ended (NaN when none did)."""
+    count = jnp.sum(ended)
+    means = {}
+    for name, value in env_metrics.items():
+        if name.startswith("episode/"):
+            total = jnp.sum(jnp.where(ended, value, 0.0))
+            means[f"env/{name}"] = jnp.where(count > 0, total / jnp.maximum(count, 1), jnp.nan)
+        else:
+            means[f"env/{name}"] = jnp.mean(value)
+    return means
 
 
 def _watched(state: TrainState, metrics) -> dict:

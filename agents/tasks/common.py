@@ -40,17 +40,21 @@ def world_of(world, params):
 
 
 def simulate_control_step(model, world, physics, target, dt, substeps: int, method: str,
-                          target_velocity=None):
+                          target_velocity=None, observe=None, observed=None):
     """`substeps` simulation steps of dt towards the PD `target` (a `lax.scan`); returns the
-    state and which link touched which object in any of them ((n_links, n_objects) bools)."""
+    state and which link touched which object in any of them ((n_links, n_objects) bools).
+    With `observe(state, observed) -> observed`, also what it makes of every substep's state,
+    starting from `observed` (a task's per-substep bookkeeping, e.g. a plane crossing)."""
     def substep(carry, _):
-        state, touched = carry
+        state, touched, seen = carry
         state = simulation.step(model, world, state, target, dt, method, target_velocity)
-        return (state, touched | state.touching), None
+        seen = seen if observe is None else observe(state, seen)
+        return (state, touched | state.touching, seen), None
 
     touched = jnp.zeros(physics.touching.shape, bool)
-    (physics, touched), _ = jax.lax.scan(substep, (physics, touched), None, length=substeps)
-    return physics, touched
+    (physics, touched, observed), _ = jax.lax.scan(substep, (physics, touched, observed), None,
+                                                   length=substeps)
+    return (physics, touched) if observe is None else (physics, touched, observed)
 
 
 def keep_finite(stepped, before):

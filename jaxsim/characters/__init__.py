@@ -1,5 +1,6 @@
 """Characters: built-in humanoid, quadruped and snakes, and DeepMimic's character files."""
 
+from jaxsim.characters.athlete import athlete
 from jaxsim.characters.common import vertical_extent
 from jaxsim.characters.deepmimic import load_deepmimic
 from jaxsim.characters.humanoid import humanoid
@@ -8,4 +9,4 @@ from jaxsim.characters.snake import snake
 
 BUILTIN = {"humanoid": humanoid, "quadruped": quadruped, "snake": snake}
 
-__all__ = ["BUILTIN", "humanoid", "load_deepmimic", "quadruped", "snake", "vertical_extent"]
+__all__ = ["BUILTIN", "athlete", "humanoid", "load_deepmimic", "quadruped", "snake", "vertical_extent"]

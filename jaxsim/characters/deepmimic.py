@@ -7,8 +7,9 @@ frame) and Param0-2 (sphere: diameter; capsule: diameter and cylinder length alo
 extents). Revolute joints turn about their local Z axis. Controller files list `PDControllers[]`
 with Name, Kp and Kd per joint.
 
-DeepMimic's conventions for "no limit" become the builder's (see `LinkSpec`): TorqueLim 0 is no
-torque limit (np.inf), and a DoF with LimLow > LimHigh has no position limit (∓np.inf). The
+DeepMimic's conventions for "no limit" become the builder's (see `LinkSpec`): TorqueLim 0, or no
+TorqueLim field (DeepMimic's default is 0; the thesis's 60 kg jumper leaves it out on its hips,
+ankles and shoulders), is no torque limit (np.inf), and a DoF with LimLow > LimHigh has no position limit (∓np.inf). The
 root's limits and torque limit are not read: a free root takes none.
 """
 
@@ -89,7 +90,10 @@ def _limits(joint, n_dof, where):
 
 
 def _torque_limit(joint, where):
-    """TorqueLim, where 0 (what DeepMimic writes for the unactuated root) means no limit."""
+    """TorqueLim, where 0 (what DeepMimic writes for the unactuated root) or no such field
+    means no limit."""
+    if "TorqueLim" not in joint:
+        return np.inf
     limit = _checked(joint, "TorqueLim", where, lambda v: v >= 0,
                      "non-negative (0 for no limit)")
     return limit if limit > 0 else np.inf

@@ -1,0 +1,159 @@
+"""Take-off states (thesis §3.3, §3.6.1): where a jump policy's episodes start, and what BDS explores.
+
+The take-off frame of a reference run-up clip is "midway through the last support phase before
+becoming airborne": a foot is in support in a clip frame when its ankle is within
+`SUPPORT_HEIGHT` of the lowest the ankles get in the clip; the flight is the longest run of
+frames with neither foot in support (the jump that ends both of the thesis's reference runs); the
+support phase is the run of frames just before it in which the foot supporting the character at
+the last frame before the flight stays in support; the take-off frame is its middle frame, and
+that foot is the take-off foot.
+
+The facing-direction-invariant frame at take-off. DeepMimic's characters face along their root's
+X axis, so the frame's axes are, in the world:
+    x  the facing direction: the root's X axis projected on the ground, normalised;
+    y  the global up (+Y);
+    z  x × y: the character's right.
+Velocities in this frame are the world vectors rotated by the heading (`heading_rotation`): for
+the root, ω = (ω_x, ω_y, ω_z) its angular velocity, v = (v_x, v_y, v_z) the velocity of its
+origin. Positive ω_y turns the character to its left (counter-clockwise seen from above), as the
+thesis's curved sprint does at its end (ω_y = 3 rad/s); v_z < 0 moves it to its left.
+
+The explored features x overwrite the root's velocities of the clip's state at the take-off
+frame (everything else — the pose, v_x, v_y, the joints' velocities — is the clip's):
+    high jump  x = (α, ω_x, ω_z, v_z), with ω_y = 3 rad/s;
+    obstacle   x = (ω_x, ω_y, ω_z).
+α, the approach angle, turns the bar and the mat about the take-off point, not the character:
+the bar's plane has the horizontal normal n(α) = (sin α, 0, −cos α) in the facing frame (the
+thesis's wall line x sin α − z cos α = 0, moved 1.2 m along n), so α = 0 is a bar on the
+character's left along its running direction, crossed sideways (the Fosbury flop's row), and
+α = π/2 a bar straight ahead.
+
+Tables 3.3 and 3.4 of the thesis give the take-off states of the strategies found; their rows in
+x are `HIGHJUMP_ROWS` and `OBSTACLE_ROWS`. The search bounds (`HIGHJUMP_BOUNDS`,
+`OBSTACLE_BOUNDS`) contain every row; several rows sit on ±3.00 rad/s, v_z = −2.40 and −0.50 m/s
+and α = 2.09 (2π/3), which we read as the release's own bounds.
+"""
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from agents.config import ConfigError
+from agents.tasks.observations import heading_rotation
+from jaxsim import kinematics, motion, rotations
+
+SUPPORT_HEIGHT = 0.05          # m above the lowest ankle height of the clip
+HIGHJUMP_OMEGA_Y = 3.0         # rad/s, the curved sprint's turning rate at take-off
+HIGHJUMP_FEATURES = ("alpha", "omega_x", "omega_z", "v_z")
+OBSTACLE_FEATURES = ("omega_x", "omega_y", "omega_z")
+
+# Table 3.3 (v_z, ω_x, ω_z, α) and Table 3.4 (ω_x, ω_y, ω_z), as x.
+HIGHJUMP_ROWS = {
+    "fosbury_flop": (-0.05, -3.00, 1.00, -2.40),
+    "western_roll": (2.09, 1.00, -1.00, -0.50),
+    "straddle": (1.65, 1.00, 0.88, -2.21),
+    "front_kick": (0.45, 1.00, -0.26, -0.52),
+    "side_dive": (1.18, -2.78, -0.32, -1.83),
+    "side_jump": (0.70, -1.44, 0.44, -1.99),
+}
+OBSTACLE_ROWS = {
+    "front_kick": (1.15, -1.11, 3.89),
+    "side_kick": (3.00, 3.00, -2.00),
+    "twist_jump_clockwise": (-1.50, 1.50, -2.00),
+    "straddle": (0.00, 0.00, 1.00),
+    "twist_jump_counterclockwise": (-2.67, 0.00, -1.44),
+    "dive_turn": (-0.74, -2.15, -0.41),
+}
+HIGHJUMP_BOUNDS = ((-np.pi / 6, -3.0, -3.0, -2.4), (2 * np.pi / 3, 3.0, 3.0, -0.5))
+OBSTACLE_BOUNDS = ((-3.0, -3.0, -4.0), (3.0, 3.0, 4.0))
+
+
+@dataclasses.dataclass(frozen=True)
+class TakeoffFrame:
+    """The take-off of a clip: its time (s), the take-off foot, the support phase (s)."""
+
+    time: float
+    foot: str
+    support: tuple[float, float]
+    flight: tuple[float, float]
+
+
+def support_flags(model, clip, feet):
+    """Frame times (F,) and, per frame and foot, whether the foot is in support (F, len(feet))."""
+    times = np.asarray(clip.times)[:-1]
+    poses = np.asarray(clip.poses)[:-1]
+    links = np.array([model.topology.link_index(foot) for foot in feet])
+    heights = np.stack([np.asarray(kinematics.forward_kinematics(model, q)[1])[links, 1]
+                        for q in poses])
+    return times, heights <= heights.min() + SUPPORT_HEIGHT
+
+
+def _runs(flags):
+    """(start, stop) index pairs of the runs of True in a 1-D boolean array."""
+    padded = np.concatenate([[False], flags, [False]]).astype(int)
+    edges = np.flatnonzero(np.diff(padded))
+    return list(zip(edges[::2], edges[1::2]))
+
+
+def find_takeoff(model, clip, feet=("right_ankle", "left_ankle"), source="clip"):
+    """The take-off frame of a run-up clip (see the module docstring); a ConfigError naming
+    `source` when the clip has no flight preceded by a support phase."""
+    times, support = support_flags(model, clip, feet)
+    flights = _runs(~support.any(axis=1))
+    flights = [f for f in flights if f[0] > 0]
+    if not flights:
+        raise ConfigError(f"{source}: the clip never leaves the ground after a support phase")
+    start, stop = max(flights, key=lambda f: f[1] - f[0])
+    foot = int(np.argmax(support[start - 1]))
+    phase = [r for r in _runs(support[:, foot]) if r[1] == start][0]
+    middle = (phase[0] + phase[1] - 1) // 2
+    end = times[stop] if stop < len(times) else float(clip.duration)
+    return TakeoffFrame(float(times[middle]), feet[foot], (float(times[phase[0]]),
+                        float(times[phase[1] - 1])), (float(times[start]), float(end)))
+
+
+def facing_velocities(q, qd):
+    """The root's angular and linear velocity in the facing frame at pose q."""
+    rot = rotations.quat_to_matrix(q[3:7])
+    heading = heading_rotation(rot)
+    return heading.T @ (rot @ qd[:3]), heading.T @ (rot @ qd[3:6])
+
+
+def with_facing_velocities(q, qd, omega, velocity):
+    """qd with the root's angular and linear velocity set to the given facing-frame vectors."""
+    rot = rotations.quat_to_matrix(q[3:7])
+    to_body = rot.T @ heading_rotation(rot)
+    return qd.at[:3].set(to_body @ omega).at[3:6].set(to_body @ velocity)
+
+
+def takeoff_velocity(kind: str, q, qd, x):
+    """The take-off state's qd from the clip's (q, qd) at the take-off frame and x."""
+    omega, velocity = facing_velocities(q, qd)
+    x = jnp.asarray(x, qd.dtype)
+    if kind == "highjump":
+        omega = jnp.stack([x[1], jnp.asarray(HIGHJUMP_OMEGA_Y, qd.dtype), x[2]])
+        velocity = velocity.at[2].set(x[3])
+    else:
+        omega = x
+    return with_facing_velocities(q, qd, omega, velocity)
+
+
+def clip_state(model, clip, time):
+    """The clip's pose and velocity at `time`."""
+    return motion.sample_pose(clip, time), motion.sample_velocity(clip, time)
+
+
+def check_x(kind: str, x, key: str):
+    """x as a tuple of floats of the kind's length inside its bounds; a ConfigError naming `key`
+    otherwise."""
+    names, (lower, upper) = ((HIGHJUMP_FEATURES, HIGHJUMP_BOUNDS) if kind == "highjump"
+                             else (OBSTACLE_FEATURES, OBSTACLE_BOUNDS))
+    if len(x) != len(names):
+        raise ConfigError(f"{key} must give {len(names)} numbers ({', '.join(names)}); got "
+                          f"{len(x)}")
+    for name, value, low, high in zip(names, x, lower, upper):
+        if not (np.isfinite(value) and low - 1e-9 <= value <= high + 1e-9):
+            raise ConfigError(f"{key}: {name} = {value} is outside the search bounds "
+                              f"[{low:.3f}, {high:.3f}]")
+    return tuple(float(v) for v in x)
