@@ -250,6 +250,13 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     return summary, env, poses
 
 
+def _minutes_axis(records):
+    """(samples → minutes, minutes → samples) by interpolation of the log, for a second axis."""
+    samples = np.array([r["samples"] for r in records], float)
+    minutes = np.array([r["seconds"] for r in records], float) / 60
+    return (lambda x: np.interp(x, samples, minutes), lambda m: np.interp(m, minutes, samples))
+
+
 def _mean(values, mask):
     """The mean of `values` where `mask` is 1 (None, JSON's null, where it is nowhere)."""
     count = mask.sum()
@@ -277,13 +284,18 @@ def plot(run_dir, quiet=False):
     if not records:
         return None
     samples = np.array([r["samples"] for r in records], float)
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.5))
-    for ax, key, label in ((axes[0], "return", "mean episode return"),
-                           (axes[1], "episode_length", "mean episode length (steps)")):
+    panels = [("return", "mean episode return"), ("episode_length", "mean episode length (steps)")]
+    if "curriculum/difficulty" in records[-1]:              # a task with a curriculum (Fig. 3.10)
+        panels.append(("curriculum/difficulty", "difficulty z (bar height / width, m)"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.5))
+    for ax, (key, label) in zip(axes, panels):
         values = np.array([np.nan if r.get(key) is None else r[key] for r in records], float)
         ax.plot(samples, values, lw=1)
         ax.set_xlabel("samples")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
+    if len(panels) == 3:                                     # and against wall-clock minutes
+        minutes = axes[2].secondary_xaxis("top", functions=_minutes_axis(records))
+        minutes.set_xlabel("minutes")
     render.save_figure(fig, run_dir / CURVE, title=f"{run_dir.name}: learning curve", dpi=110)
     return run_dir / CURVE
