@@ -139,9 +139,12 @@ class Trainer:
         return jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (envs, *jnp.shape(x))),
                                       params)
 
+    def _static_key(self, curriculum_state):
+        return self.curriculum.static_key(curriculum_lib.host(curriculum_state))
+
     def env_for(self, curriculum_state):
         """The environment the curriculum's state is trained in (its static variant)."""
-        key = self.curriculum.static_key(curriculum_lib.host(curriculum_state))
+        key = self._static_key(curriculum_state)
         return self.env if key is None else self.env.variant(key)
 
     def init(self) -> TrainState:
@@ -157,11 +160,10 @@ class Trainer:
     def iteration(self, state: TrainState):
         """One iteration, compiled (once per static key of the curriculum):
         (the next state, its metrics, whether what it computed is finite)."""
-        key = self.curriculum.static_key(curriculum_lib.host(state.curriculum))
+        key = self._static_key(state.curriculum)
         if key not in self._compiled:
-            env = self.env if key is None else self.env.variant(key)
-            self._compiled[key] = jax.jit(
-                functools.partial(self._iteration, self._rollout_of(env)),
+            rollout = self._rollout_of(self.env_for(state.curriculum))
+            self._compiled[key] = jax.jit(functools.partial(self._iteration, rollout),
                 compiler_options=xla_options.simulation_options())
         return self._compiled[key](state)
 

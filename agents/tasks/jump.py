@@ -54,6 +54,7 @@ Variations (§3.7.3): `weak_takeoff_leg` (its hip, knee and ankle torque limits 
 keeps stable), `gravity` (e.g. Mars, [0, −3.711, 0]) and `landing = "feet"`.
 """
 
+import copy
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
@@ -301,8 +302,7 @@ class JumpEnv:
 
     def variant(self, control_hz):
         """This environment with another control rate (the curriculum's static key)."""
-        twin = object.__new__(JumpEnv)
-        twin.__dict__.update(self.__dict__)
+        twin = copy.copy(self)
         twin.control_hz = float(control_hz)
         return twin
 
@@ -354,9 +354,10 @@ class JumpEnv:
         return jump_geometry(self.kind, self.q0[:3], self.heading, alpha, task["difficulty"],
                              self.q0.dtype)
 
-    def world_for(self, task):
-        """The world of an episode (its bar or obstacle and block), e.g. to draw it."""
-        *_, centres, rotations_, halves = self.geometry(task)
+    def world_for(self, task, geometry=None):
+        """The world of an episode (its bar or obstacle and block), e.g. to draw it; from its
+        `geometry` when the caller has it."""
+        *_, centres, rotations_, halves = self.geometry(task) if geometry is None else geometry
         return self.world.replace(box_center=centres, box_rotation=rotations_,
                                   box_half_size=halves)
 
@@ -374,11 +375,6 @@ class JumpEnv:
             target = target.at[self._cast_knee_q].set(self.q0[self._cast_knee_q])
         return target, offset
 
-    def _signed(self, task, point):
-        """Distance of a point past the crossing plane (bar plane; obstacle centre plane)."""
-        normal, origin, _, cross, *_ = self.geometry(task)
-        return jnp.dot(point - origin, normal) - cross
-
     def reset(self, params, key):
         """The take-off state of x = params["takeoff"], at the episode's difficulty."""
         qd = takeoff_state.takeoff_velocity(self.kind, self.q0, self.qd0, params["takeoff"])
@@ -395,14 +391,16 @@ class JumpEnv:
                                 key, task, self._metrics(task, *(jnp.zeros((), bool),) * 2,
                                                          zero, jnp.zeros((), bool)))
 
-    def _crossing(self, task):
+    def _crossing(self, task, geometry=None):
         """The per-substep observer: the root's orientation at the first substep where the
-        centre of mass is past the crossing plane, and the peak centre-of-mass height."""
-        bar_top = self.geometry(task)[4]
+        centre of mass is past the crossing plane (bar plane; obstacle centre plane), and the
+        peak centre-of-mass height."""
+        normal, origin, _, cross, bar_top, *_ = (self.geometry(task) if geometry is None
+                                                 else geometry)
 
         def observe(state, seen):
             com = kinematics.center_of_mass(self.model, state.q)
-            now = ~seen["crossed"] & (self._signed(task, com) >= 0)
+            now = ~seen["crossed"] & (jnp.dot(com - origin, normal) - cross >= 0)
             rot = rotations.quat_to_matrix(state.q[3:7])
             relative = rotations.matrix_to_rotvec(self.heading.T @ rot)
             up_angle = jnp.arccos(jnp.clip(rot[1, 0], -1.0, 1.0))      # root X axis vs +Y
@@ -418,11 +416,13 @@ class JumpEnv:
         """One control step: the PD target, `substeps` of simulation with the crossing
         observed, then the rules and, at success, the reward."""
         task = state.task
-        world = common.world_of(self.world_for(task), params)
+        geometry = self.geometry(task)                 # fixed for the episode at its reset
+        world = common.world_of(self.world_for(task, geometry), params)
         target, offset = self.pd_target(action)
         stepped, touched, task = common.simulate_control_step(
             self.model, world, state.physics, target, 1.0 / self.settings.sim_hz,
-            self.substeps, self.settings.method, observe=self._crossing(task), observed=task)
+            self.substeps, self.settings.method, observe=self._crossing(task, geometry),
+            observed=task)
         physics, finite = common.keep_finite(stepped, state.physics)
         task = jax.tree_util.tree_map(lambda new, old: jnp.where(finite, new, old), task,
                                       state.task)          # what a blown-up substep saw is dropped
@@ -436,7 +436,7 @@ class JumpEnv:
         task = {**task, "landed": task["landed"] | on_block.any(),
                 "unsafe": task["unsafe"] | (first_touch & unsafe_now)}
         _, pos = kinematics.forward_kinematics(self.model, physics.q)
-        normal, origin, far, *_ = self.geometry(task)
+        normal, origin, far, *_ = geometry
         past = jnp.all((pos - origin) @ normal > far + CLEAR_MARGIN)
         landed = jnp.any(on_block[self._torso]) | (jnp.sum(on_block) >= 4)
         success = past & landed & finite
