@@ -42,25 +42,47 @@ def test_the_takeoff_state_has_x_s_root_velocities_in_the_facing_frame_and_the_c
         kind, highjump, obstacle):
     env = highjump if kind == "highjump" else obstacle
     rows = takeoff_state.HIGHJUMP_ROWS if kind == "highjump" else takeoff_state.OBSTACLE_ROWS
+    clip_q, clip_qd = takeoff_state.clip_state(env.model, _clip(env), env.takeoff.time)
+    foot = env.model.topology.link_index(env.takeoff.foot)
+    leg = takeoff_state.leg_dofs(env.model, foot)
+    others = np.setdiff1d(np.arange(6, env.model.nv), leg)
     for x in rows.values():
         params = {**env.default_params(), "takeoff": jnp.asarray(x)}
         state = env.reset(params, jax.random.PRNGKey(0))
-        np.testing.assert_array_equal(state.physics.q, env.q0)          # the clip's pose
-        omega, velocity = takeoff_state.facing_velocities(state.physics.q, state.physics.qd)
-        clip_omega, clip_velocity = takeoff_state.facing_velocities(env.q0, env.qd0)
+        q, qd = state.physics.q, state.physics.qd
+        # The clip's pose, put down on the take-off foot: only the root's height differs.
+        np.testing.assert_array_equal(np.delete(q, 1), np.delete(clip_q, 1))
+        assert float(takeoff_state.foot_clearance(env.model, q, env.takeoff.foot)) == \
+            pytest.approx(0.0, abs=1e-12)
+        assert float(takeoff_state.foot_clearance(env.model, clip_q, env.takeoff.foot)) > 0.05
+        omega, velocity = takeoff_state.facing_velocities(q, qd)
+        clip_omega, clip_velocity = takeoff_state.facing_velocities(clip_q, clip_qd)
         if kind == "highjump":
-            np.testing.assert_allclose(omega, [x[1], 3.0, x[2]], atol=1e-12)
+            np.testing.assert_allclose(omega, [x[1], -3.0, x[2]], atol=1e-12)
             np.testing.assert_allclose(velocity, [*clip_velocity[:2], x[3]], atol=1e-12)
         else:
             np.testing.assert_allclose(omega, x, atol=1e-12)
             np.testing.assert_allclose(velocity, clip_velocity, atol=1e-12)
-        np.testing.assert_array_equal(state.physics.qd[6:], env.qd0[6:])   # joints: the clip's
+        # The take-off foot is planted; the joints off the take-off leg move as in the clip.
+        np.testing.assert_allclose(takeoff_state.foot_velocity(env.model, q, qd, foot), 0,
+                                   atol=1e-9)
+        np.testing.assert_array_equal(qd[others], clip_qd[others])
         # The facing frame: x along the root's X axis projected on the ground, y up.
         rot = rotations.quat_to_matrix(env.q0[3:7])
         forward = np.asarray(rot[:, 0]) * [1, 0, 1]
         np.testing.assert_allclose(env.heading[:, 0], forward / np.linalg.norm(forward),
                                    atol=1e-12)
         np.testing.assert_allclose(env.heading[:, 1], [0, 1, 0], atol=1e-12)
+
+
+def test_the_sprint_turns_as_the_fixed_omega_y_does(highjump):
+    """ω_y = −3 rad/s is the curved sprint's own turning at take-off (the thesis's "3 rad/s")."""
+    clip = _clip(highjump)
+    turning = [float(takeoff_state.facing_velocities(
+        *takeoff_state.clip_state(highjump.model, clip, t))[0][1])
+        for t in np.arange(highjump.takeoff.support[0], highjump.takeoff.flight[0], 1 / 30)]
+    assert np.mean(turning) < -1.0
+    assert np.sign(takeoff_state.HIGHJUMP_OMEGA_Y) == np.sign(np.mean(turning))
 
 
 @pytest.mark.parametrize("kind", ["highjump", "obstacle"])

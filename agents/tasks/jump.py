@@ -276,6 +276,7 @@ class JumpEnv:
         clip = motion.load_motion(self.clip_path, model)
         self.takeoff = takeoff_state.find_takeoff(model, clip, settings.feet, settings.clip)
         q0, qd0 = takeoff_state.clip_state(model, clip, self.takeoff.time)
+        q0 = takeoff_state.grounded(model, q0, self.takeoff.foot)
         self.q0, self.qd0 = q0.astype(dtype), qd0.astype(dtype)
         self.model = self._varied(model)
         self.heading = takeoff_state.heading_rotation(rotations.quat_to_matrix(self.q0[3:7]))
@@ -377,7 +378,8 @@ class JumpEnv:
 
     def reset(self, params, key):
         """The take-off state of x = params["takeoff"], at the episode's difficulty."""
-        qd = takeoff_state.takeoff_velocity(self.kind, self.q0, self.qd0, params["takeoff"])
+        qd = takeoff_state.takeoff_velocity(self.kind, self.model, self.q0, self.qd0,
+                                            params["takeoff"], self._takeoff_foot)
         physics = simulation.init_state(self.model, self.world, self.q0, qd)
         dtype = self.q0.dtype
         zero = jnp.zeros((), dtype)

@@ -15,12 +15,18 @@ X axis, so the frame's axes are, in the world:
     z  x × y: the character's right.
 Velocities in this frame are the world vectors rotated by the heading (`heading_rotation`): for
 the root, ω = (ω_x, ω_y, ω_z) its angular velocity, v = (v_x, v_y, v_z) the velocity of its
-origin. Positive ω_y turns the character to its left (counter-clockwise seen from above), as the
-thesis's curved sprint does at its end (ω_y = 3 rad/s); v_z < 0 moves it to its left.
+origin. Positive ω_y turns the character to its left (counter-clockwise seen from above); the
+curved sprint turns to its right at its end (ω_y = −3.2 rad/s at 3.30 s, −3.5 at 3.50 s in this
+frame), so the thesis's "3 rad/s, taken from the reference curved sprint" is ω_y = −3 here;
+v_z < 0 moves the character to its left (the sprint's −1.1 m/s at take-off; Table 3.3's v_z are
+all negative). ω_x < 0 rolls its head to its left, towards the bar of α = 0, as the Fosbury
+flop's row (ω_x = −3) does.
 
-The explored features x overwrite the root's velocities of the clip's state at the take-off
-frame (everything else — the pose, v_x, v_y, the joints' velocities — is the clip's):
-    high jump  x = (α, ω_x, ω_z, v_z), with ω_y = 3 rad/s;
+The take-off state is the clip's pose at the take-off frame put down on the take-off foot
+(`grounded`), with the explored features x overwriting the root's velocities and the take-off
+leg's joint velocities changed so that the planted foot stays put (`planted`); everything else —
+v_x, v_y, the other joints' velocities — is the clip's:
+    high jump  x = (α, ω_x, ω_z, v_z), with ω_y = −3 rad/s;
     obstacle   x = (ω_x, ω_y, ω_z).
 α, the approach angle, turns the bar and the mat about the take-off point, not the character:
 the bar's plane has the horizontal normal n(α) = (sin α, 0, −cos α) in the facing frame (the
@@ -36,15 +42,17 @@ and α = 2.09 (2π/3), which we read as the release's own bounds.
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from agents.config import ConfigError
 from agents.tasks.observations import heading_rotation
-from jaxsim import kinematics, motion, rotations
+from jaxsim import contact, kinematics, motion, rotations
+from jaxsim.world import make_world
 
 SUPPORT_HEIGHT = 0.05          # m above the lowest ankle height of the clip
-HIGHJUMP_OMEGA_Y = 3.0         # rad/s, the curved sprint's turning rate at take-off
+HIGHJUMP_OMEGA_Y = -3.0        # rad/s, the curved sprint's turning rate at take-off
 HIGHJUMP_FEATURES = ("alpha", "omega_x", "omega_z", "v_z")
 OBSTACLE_FEATURES = ("omega_x", "omega_y", "omega_z")
 
@@ -127,8 +135,41 @@ def with_facing_velocities(q, qd, omega, velocity):
     return qd.at[:3].set(to_body @ omega).at[3:6].set(to_body @ velocity)
 
 
-def takeoff_velocity(kind: str, q, qd, x):
-    """The take-off state's qd from the clip's (q, qd) at the take-off frame and x."""
+def foot_velocity(model, q, qd, foot: int):
+    """The world angular velocity and the world velocity of the origin of link `foot` (6,)."""
+    rot, _, v = kinematics.link_states(model, q, qd)
+    return jnp.concatenate([rot[foot] @ v[foot, :3], rot[foot] @ v[foot, 3:]])
+
+
+def leg_dofs(model, foot: int) -> np.ndarray:
+    """The velocity indices of the joints from the root (excluded) down to link `foot`."""
+    topo, links = model.topology, []
+    while foot > 0:
+        links.append(foot)
+        foot = topo.parents[foot]
+    return np.concatenate([np.arange(topo.dof_offsets[i], topo.dof_offsets[i + 1])
+                           for i in reversed(links)])
+
+
+def planted(model, q, qd, foot: int):
+    """qd with the joint velocities of the leg of `foot` changed, by the least change, so the
+    foot does not move: its angular velocity and the velocity of its origin are zero.
+
+    Overwriting the root's velocities with x sets the pelvis turning and sliding over a foot
+    that, mid-support, stands on the ground; left as the clip had them, the leg's joints carry
+    the foot along with the pelvis (at ω_x = −3 rad/s and a 0.9 m leg, about 3 m/s) and it
+    leaves the ground before it can push. The foot's velocity is linear in qd: with J its
+    columns for the leg (6 × 7 for hip, knee and ankle), the change is J⁺(−foot velocity)."""
+    dofs = leg_dofs(model, foot)
+    velocity = foot_velocity(model, q, qd, foot)
+    jacobian = jax.jacfwd(lambda leg: foot_velocity(model, q, qd.at[dofs].set(leg), foot))(
+        qd[dofs])
+    return qd.at[dofs].add(jnp.linalg.pinv(jacobian) @ -velocity)
+
+
+def takeoff_velocity(kind: str, model, q, qd, x, foot: int):
+    """The take-off state's qd from the clip's (q, qd) at the take-off frame and x, with the
+    take-off foot `foot` planted (`planted`)."""
     omega, velocity = facing_velocities(q, qd)
     x = jnp.asarray(x, qd.dtype)
     if kind == "highjump":
@@ -136,12 +177,32 @@ def takeoff_velocity(kind: str, q, qd, x):
         velocity = velocity.at[2].set(x[3])
     else:
         omega = x
-    return with_facing_velocities(q, qd, omega, velocity)
+    return planted(model, q, with_facing_velocities(q, qd, omega, velocity), foot)
 
 
 def clip_state(model, clip, time):
     """The clip's pose and velocity at `time`."""
     return motion.sample_pose(clip, time), motion.sample_velocity(clip, time)
+
+
+def foot_clearance(model, q, foot: str):
+    """The height of the lowest ground probe of the link `foot` (its shape's lowest corner or
+    surface point) above the ground plane y = 0, at pose q."""
+    world = make_world(dtype=q.dtype)
+    rot, pos = kinematics.forward_kinematics(model, q)
+    *_, gaps = contact.contact_geometry(model, world, rot, pos)
+    probes = contact.contact_layout(model, world).ground
+    return jnp.min(gaps[:len(probes)][probes.link == model.topology.link_index(foot)])
+
+
+def grounded(model, q, foot: str):
+    """q moved vertically so that `foot` rests on the ground (its lowest point at y = 0).
+
+    The release's run-up clips float above our ground: the curved sprint's ankles never come
+    lower than 0.158 m, its feet's soles ~0.1 m up, and a take-off state taken from it as it
+    is starts in the air, with nothing to push off. The take-off state is the clip's pose put
+    down on its take-off foot."""
+    return q.at[1].add(-foot_clearance(model, q, foot))
 
 
 def check_x(kind: str, x, key: str):
