@@ -183,7 +183,8 @@ def plot_stability(rows, case, path):
 
 def batched_states(state, batch):
     """`batch` copies of a state, split over the host devices when there are several (run with
-    XLA_FLAGS=--xla_force_host_platform_device_count=2 to use both cores; DESIGN.md)."""
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 to use both cores; docs/design.md,
+    "Performance notes")."""
     states = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), state)
     n = jax.device_count()
     if n == 1 or batch % n:

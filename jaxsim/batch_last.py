@@ -11,7 +11,8 @@ outputs), but evaluates the per-example program itself: it traces `fun` for one 
 jaxpr and evaluates it equation by equation on arrays that carry the batch as one extra trailing
 axis. Each primitive is re-issued with its parameters adjusted for that axis. A primitive without
 such a rule here goes through `jax.vmap` on its own, with the batch moved to the front and back
-(correct, only slower). So the dynamics stay written for one character, as DESIGN.md asks.
+(correct, only slower). So the dynamics stay written for one character, as docs/design.md
+asks ("Principles").
 
 Values that do not depend on the batch (the model, constants) stay unbatched, as in `jax.vmap`.
 The result is an ordinary JAX computation: it jits, differentiates and nests like any other.

@@ -7,8 +7,9 @@ a damper resists motion further out:
 
     τ_limit = k (lower − c)₊ − k (c − upper)₊ − d q̇ · [moving further out of range].
 
-Torque limits clip the joint torques of the SPD solve per DoF to ±`Model.torque_limit` (the
-two-pass mode of DESIGN.md; see `jaxsim.simulation.step`).
+Torque limits clip the joint torques of the SPD solve per DoF to ±`Model.torque_limit` (and,
+where one binds, the step re-solves with ABA: docs/design.md, "Simulation step"; see
+`jaxsim.simulation.step`).
 """
 
 import jax.numpy as jnp

@@ -27,7 +27,8 @@ JOINT_TYPES = ("free", "spherical", "revolute", "fixed")
 SHAPE_TYPES = ("none", "sphere", "capsule", "box")
 Q_SIZE = {"free": 7, "spherical": 4, "revolute": 1, "fixed": 0}
 DOF_SIZE = {"free": 6, "spherical": 3, "revolute": 1, "fixed": 0}
-# Non-root joints occupy 3 padded velocity slots in the tree scans (DESIGN.md, "Conventions").
+# Non-root joints occupy 3 padded velocity slots in the tree passes
+# (docs/design.md, "Conventions").
 JOINT_SLOTS = 3
 
 

@@ -1,4 +1,4 @@
-"""The simulation step and multi-step simulation (DESIGN.md, "Simulation step").
+"""The simulation step and multi-step simulation (docs/design.md, "Simulation step").
 
 One step: collisions → contact forces → joint-limit torques → SPD solve (thesis eq. 2.7, by the
 chosen method) → torque limits (clip, and re-solve with ABA where they bind) → semi-implicit Euler

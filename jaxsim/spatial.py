@@ -19,7 +19,7 @@ def mat_vec(a, v):
 
     XLA on CPU runs batches of tiny `dot`s slowly, and a `dot` or a reduction ends a fusion. Written
     as a short sum of elementwise products (one term per inner index), the product fuses with the
-    operations around it into one loop (DESIGN.md, "Performance notes").
+    operations around it into one loop (docs/design.md, "Performance notes").
     """
     return sum(a[..., :, k] * v[..., k:k + 1] for k in range(a.shape[-1]))
 

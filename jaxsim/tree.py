@@ -1,4 +1,4 @@
-"""Tree traversals over the depth levels of a static tree (DESIGN.md, "Dynamics").
+"""Tree traversals over the depth levels of a static tree (docs/design.md, "Dynamics").
 
 Non-root links are grouped by depth into levels (`Topology.levels`); each traversal step handles
 one whole level, vmapped over its links, so the number of sequential steps is the tree's depth.

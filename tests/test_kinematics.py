@@ -122,7 +122,8 @@ def test_link_velocities_match_finite_differences(models, seed):
 
 
 def test_root_velocity_is_body_frame(models):
-    """The root's qd is its body-frame [ω; v] (DESIGN.md): link_velocities returns it as is."""
+    """The root's qd is its body-frame [ω; v] (docs/design.md, "Conventions"): link_velocities
+    returns it as is."""
     model = models["humanoid"]
     q, qd, _ = random_state(model, 13)
     np.testing.assert_allclose(velocities(model, q, qd)[0], qd[:6], atol=1e-15)

@@ -1,5 +1,5 @@
 """Bad model descriptions fail early with a ModelError naming the file, the joint/body and the
-field (DESIGN.md, "Errors a user can act on")."""
+field (docs/design.md, "Errors a user can act on")."""
 
 import copy
 import json

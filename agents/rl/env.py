@@ -1,4 +1,5 @@
-"""The environment interface: pure `reset` and `step` over pytrees (DESIGN.md, "Agents").
+"""The environment interface: pure `reset` and `step` over pytrees
+(docs/design.md, "Agents").
 
 An environment is a Python object that holds what is fixed for a whole run (the character, the
 world, the clip, reward weights) and exposes pure functions of one environment:

@@ -31,7 +31,7 @@ _VARIANCE_EPS = 1e-8
 
 @dataclass(frozen=True)
 class PPOSettings:
-    """The `[ppo]` config section; defaults are the thesis's (DESIGN.md, "Agents")."""
+    """The `[ppo]` config section; defaults are the thesis's (docs/design.md, "Agents")."""
 
     gamma: float = 1.0               # episodic, sparse-reward jump tasks
     lam: float = 0.95
