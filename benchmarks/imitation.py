@@ -14,16 +14,13 @@ Needs the reference data (TAKEOFF_DATA, default ../shared/data).
 import argparse
 import json
 import shutil
-import statistics
-import time
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
+import training_speed
 from agents.commands import train_commands
-from jaxsim import allocator, render, xla_options
+from jaxsim import allocator, render
 from jaxsim.atomic import write_text_atomic
 from spd import machine_info, reference_data
 
@@ -32,62 +29,10 @@ CONFIG = ROOT / "configs" / "imitate_walk.toml"
 DOCS, RESULTS = ROOT / "docs", ROOT / "benchmarks" / "results"
 
 
-def _timed(fn, *args, repeats):
-    """Median seconds of `repeats` calls after a first (compiling) call; and that first call."""
-    start = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - start)
-    return statistics.median(times), first
-
-
-def update_floor(update, args, steps, size=2048):
-    """The floating-point operations of one PPO update (`update` jitted, on `args`) and this
-    machine's float32 matmul rate (a size × size product, median of 10): the update cannot run
-    faster than their ratio, however fast the simulation. XLA's cost analysis of the compiled
-    update counts the body of a loop once, so it gives one minibatch step (plus the advantages);
-    times `steps` minibatch steps."""
-    flop = update.lower(*args).compile().cost_analysis()["flops"] * steps
-    a = jnp.ones((size, size), jnp.float32)
-    matmul_s, _ = _timed(jax.jit(jnp.matmul), a, a, repeats=10)
-    return flop, 2 * size ** 3 / matmul_s
-
-
 def speed(args):
-    config = train_commands.load_config(CONFIG, args.set)
-    trainer = train_commands.make_trainer(config, reference_data("deepmimic"))
-    state = trainer.init()
-    p = state.ppo
-    sigma = trainer.sigma(p.samples)
-    # The parts are timed as the iteration compiles them: with the simulator's XLA options.
-    options = xla_options.simulation_options()
-    rollout = jax.jit(trainer.rollout, compiler_options=options)
-    rollout_args = (trainer.env_params_for(state.curriculum), state.runner, p.policy_params, p.value_params,
-                    state.norm, sigma, state.key)
-    rollout_s, rollout_compile = _timed(rollout, *rollout_args, repeats=args.repeats)
-    batch = rollout(*rollout_args)[1]
-    update = jax.jit(trainer.ppo.update, compiler_options=options)
-    update_s, update_compile = _timed(update, p, batch, state.key, repeats=args.repeats)
-    iteration_s, iteration_compile = _timed(lambda s: trainer.iteration(s)[1], state,
-                                            repeats=args.repeats)
-    samples = config.run.samples_per_iteration
-    update_flop, matmul_rate = update_floor(
-        update, (p, batch, state.key),
-        config.ppo.epochs * (samples // config.ppo.minibatch_size))
-    result = {"machine": machine_info(), "envs": config.run.envs,
-              "steps_per_iteration": config.run.steps_per_iteration,
-              "samples_per_iteration": samples,
-              "iteration_seconds": iteration_s, "samples_per_second": samples / iteration_s,
-              "rollout_seconds": rollout_s, "update_seconds": update_s,
-              "rollout_share": rollout_s / (rollout_s + update_s),
-              "update_gflop": update_flop / 1e9, "matmul_gflop_per_s": matmul_rate / 1e9,
-              "update_floor_seconds": update_flop / matmul_rate, "xla_options": options,
-              "compile_seconds": {"rollout": rollout_compile, "update": update_compile,
-                                  "iteration": iteration_compile}}
+    result = {"machine": machine_info(),
+              **training_speed.measure(CONFIG, reference_data("deepmimic"), args.set,
+                                       args.repeats)}
     write_text_atomic(RESULTS / "imitation_speed.json", json.dumps(result, indent=2) + "\n")
     print(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
 

@@ -170,6 +170,22 @@ def filmstrip(model: Model, qs, path, world: World | None = None, n_panels: int 
     save_figure(fig, path, title)
 
 
+def views(model: Model, q, path, world: World | None = None, azimuths=(0.0, 90.0),
+          labels=None, style: str = "shapes", elevation: float = 0.0,
+          title: str | None = None, panel_size: float = 3.0):
+    """One pose q (nq,) seen from several cameras (`azimuths`, degrees; see `camera`), a panel
+    each, centred on the root and labelled by `labels`, saved as a PNG."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, len(azimuths), figsize=(panel_size * len(azimuths),
+                                                        panel_size * 1.2), squeeze=False)
+    for k, (ax, azimuth) in enumerate(zip(axes[0], azimuths)):
+        rot, pos, view, height = _prepare(model, np.asarray(q)[None], style, azimuth, elevation)
+        _draw_panel(ax, model, rot[0], pos[0], world, view, pos[0, 0] @ view[0], height, style)
+        if labels is not None:
+            ax.set_title(labels[k], fontsize=9)
+    save_figure(fig, path, title)
+
+
 def save_figure(fig, path, title: str | None = None, dpi: int = 100):
     """Lay out a matplotlib figure, write it as a PNG atomically, and close it."""
     if title:

@@ -167,6 +167,11 @@ def test_lying_on_the_block_past_the_bar_is_a_success_with_the_reward_by_hand(hi
     assert float(terms["safety"]) == 0.7                  # a head-first landing
     assert float(r) == pytest.approx(np.exp(-0.02 * omega_mean) * 0.7 * (1 - (12.0 / c) ** 2),
                                      rel=1e-12)
+    # Stage 2's novelty multiplies in, from the episode's strategy features.
+    novel = highjump.with_novelty(lambda f: jnp.clip(jnp.abs(f["up_angle"]) + 0.25, 0, 1))
+    r_novel, terms = novel.reward(task, steps)
+    assert float(terms["novelty"]) == pytest.approx(min(abs(float(task["up_angle"])) + 0.25, 1))
+    assert float(r_novel) == pytest.approx(expected * float(terms["novelty"]), rel=1e-12)
     # Standing on its head over the block, the head touches it first: unsafe.
     params, state, q = _placed(highjump, jump.BAR_DISTANCE + 1.4, 0.95, lying=True, tilt=np.pi)
     state, _ = _run(highjump, high_step, params, state, _hold(highjump, q), 5)
@@ -178,6 +183,7 @@ def test_touching_the_wall_fails(highjump, high_step):
     state, steps = _run(highjump, high_step, params, state, _hold(highjump, q), 5)
     assert steps <= 2 and bool(state.terminated) and float(state.reward) == 0.0
     assert float(state.metrics["episode/failure"]) == 1.0
+    assert float(state.metrics["episode/hit_bar"]) == 1.0
     assert bool(state.physics.touching[:, highjump.world.object_index("bar")].any())
 
 
@@ -186,6 +192,8 @@ def test_a_link_other_than_the_takeoff_foot_on_the_ground_fails(highjump, high_s
     state, steps = _run(highjump, high_step, params, state, _hold(highjump, q), 5)
     assert steps == 1 and bool(state.terminated)
     assert float(state.metrics["episode/failure"]) == 1.0
+    assert float(state.metrics["episode/on_ground"]) == 1.0
+    assert float(state.metrics["episode/hit_bar"]) == 0.0
     # The take-off foot alone may touch the ground: standing on it is no failure.
     params, state, q = _placed(highjump, -1.0, float(highjump.q0[1]), lying=False)
     state = high_step(params, state, _hold(highjump, q))
@@ -197,6 +205,8 @@ def test_two_seconds_after_takeoff_without_success_fail(highjump, high_step):
     state, steps = _run(highjump, high_step, params, state, _hold(highjump, q), 30)
     assert steps == 20                                      # 2 s at 10 Hz
     assert bool(state.terminated) and float(state.metrics["episode/failure"]) == 1.0
+    assert float(state.metrics["episode/timeout"]) == 1.0
+    assert float(state.metrics["episode/on_ground"]) == 0.0
     assert not np.asarray(state.physics.touching).any()
 
 

@@ -55,3 +55,15 @@ def test_unknown_style_is_refused(tmp_path, poses):
     model, qs = poses
     with pytest.raises(ValueError, match="style must be one of"):
         render.filmstrip(model, qs, tmp_path / "x.png", style="wireframe")
+
+
+def test_views_show_one_pose_from_each_camera(tmp_path, poses):
+    """A pose from the side and from the front: two panels, each with the body in it."""
+    from matplotlib.image import imread
+    model, qs = poses
+    render.views(model, qs[1], tmp_path / "views.png", azimuths=(0.0, 90.0),
+                 labels=("side", "front"))
+    image = imread(tmp_path / "views.png")[..., :3]
+    body_blue = np.all(np.abs(image - np.array([0x4c, 0x72, 0xb0]) / 255) < 0.02, axis=-1)
+    left, right = np.array_split(body_blue, 2, axis=1)
+    assert left.mean() > 0.003 and right.mean() > 0.003

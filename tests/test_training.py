@@ -131,6 +131,9 @@ def test_resumed_run_equals_an_uninterrupted_one_bit_for_bit(tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     lines = trainer_lib.read_metrics(tmp_path / "resumed")
     assert [r["iteration"] for r in lines] == [1, 2, 3, 4]
+    # The training clock goes on from the checkpoint's, so curves against minutes continue.
+    seconds = [r["seconds"] for r in lines]
+    assert all(b > a for a, b in zip(seconds, seconds[1:]))
 
 
 def test_run_directory_metrics_and_curve(tmp_path):

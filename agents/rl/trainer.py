@@ -99,8 +99,8 @@ jax.tree_util.register_dataclass(
 
 
 class Trainer:
-    """One training setup: the networks and PPO (`ppo`), the rollout, `init` and the jitted
-    `iteration` (one compiled program per static key of the curriculum)."""
+    """One training setup: the networks and PPO (`ppo`), the rollout, `init` and the compiled
+    `iteration` (its rollout compiled once per static key of the curriculum)."""
 
     def __init__(self, env, env_params, run: RunSettings, ppo: PPOSettings,
                  params_per_env: bool = False):
@@ -110,7 +110,7 @@ class Trainer:
         self.ppo = make_ppo(env.observation_size, env.action_size, ppo)
         self.policy_apply, self.value_apply = self.ppo.policy_apply, self.ppo.value_apply
         self.rollout = self._rollout_of(env)
-        self._compiled = {}
+        self._compiled, self._learn_compiled = {}, None
 
     def _rollout_of(self, env):
         return rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
@@ -158,23 +158,37 @@ class Trainer:
                           curriculum)
 
     def iteration(self, state: TrainState):
-        """One iteration, compiled (once per static key of the curriculum):
-        (the next state, its metrics, whether what it computed is finite)."""
+        """One iteration: (the next state, its metrics, whether what it computed is finite).
+
+        Two compiled programs, each with the XLA options that suit it: the rollout with the
+        simulator's (`xla_options.simulation_options`; 2.4× faster there), the PPO update and
+        the bookkeeping with XLA's defaults, under which the update's elementwise optimiser
+        loops run faster (docs/benchmarks.md, "The jump tasks: training throughput"). The
+        rollout is compiled once per static key of the curriculum."""
         key = self._static_key(state.curriculum)
         if key not in self._compiled:
             rollout = self._rollout_of(self.env_for(state.curriculum))
-            self._compiled[key] = jax.jit(functools.partial(self._iteration, rollout),
-                compiler_options=xla_options.simulation_options())
-        return self._compiled[key](state)
+            self._compiled[key] = jax.jit(functools.partial(self._collect, rollout),
+                                          compiler_options=xla_options.simulation_options())
+        if self._learn_compiled is None:
+            self._learn_compiled = jax.jit(self._learn)
+        return self._learn_compiled(state, self._compiled[key](state))
 
-    def _iteration(self, rollout, state: TrainState):
+    def _collect(self, rollout, state: TrainState):
+        """The rollout of an iteration, from the state's key."""
         key, rollout_key, update_key = jax.random.split(state.key, 3)
         p = state.ppo
         runner, batch, raw_obs, episodes, env_metrics, _ = rollout(
             self.env_params_for(state.curriculum), state.runner, p.policy_params,
             p.value_params, state.norm, self.sigma(p.samples), rollout_key)
+        return runner, batch, raw_obs, episodes, env_metrics, key, update_key
+
+    def _learn(self, state: TrainState, collected):
+        """The rest of an iteration from its rollout: PPO's update, the observation statistics,
+        the curriculum and the metrics."""
+        runner, batch, raw_obs, episodes, env_metrics, key, update_key = collected
         norm = state.norm.update(raw_obs)
-        ppo_state, metrics = self.ppo.update(p, batch, update_key)
+        ppo_state, metrics = self.ppo.update(state.ppo, batch, update_key)
         mean_return, mean_length, finished = rollout_lib.episode_summary(episodes)
         curriculum = self.curriculum.update(state.curriculum,
                                             jnp.where(finished > 0, mean_return, 0.0))
@@ -240,14 +254,19 @@ def completed_iterations(state: TrainState) -> int:
 
 # ---- The loop --------------------------------------------------------------------------------
 
-def _line(record, total, started, first):
-    elapsed = time.perf_counter() - started
+def _line(record, total, resumed_at, first):
+    elapsed = time.perf_counter() - resumed_at
     done = record["iteration"] - first
     left = elapsed / max(done, 1) * (total - record["iteration"])
     ret = record["return"]
+    task = ""                                       # what a task with a curriculum shows
+    if record.get("curriculum/difficulty") is not None:
+        task += f"  z {record['curriculum/difficulty']:.2f}"
+    if record.get("env/episode/success") is not None:
+        task += f"  success {100 * record['env/episode/success']:5.1f}%"
     return (f"iter {record['iteration']:>5}/{total}  {record['samples_per_second']:>8.0f} "
             f"samples/s  return {'—' if ret is None else f'{ret:8.3f}'}  "
-            f"len {record['episode_length'] or 0:6.1f}  σ {record['sigma']:.3f}  "
+            f"len {record['episode_length'] or 0:6.1f}{task}  σ {record['sigma']:.3f}  "
             f"left {left / 60:5.1f} min")
 
 
@@ -265,8 +284,10 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
     settings = trainer.run_settings
     first = completed_iterations(state)
     saved = first                       # the iteration of the checkpoint in run_dir (0: none)
-    started = time.perf_counter()
-    last_time = started
+    logged = [r for r in read_metrics(run_dir) if r["iteration"] == first] if first else []
+    before = logged[-1]["seconds"] if logged else 0.0   # a resumed run's clock goes on
+    resumed_at = last_time = time.perf_counter()
+    started = resumed_at - before
     try:
         with open(run_dir / METRICS, "a", encoding="utf-8") as log:
             for _ in range(first, settings.iterations):
@@ -287,11 +308,12 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
                 log.flush()
                 state = new_state
                 if record["iteration"] % settings.progress_every == 0:
-                    echo(_line(record, settings.iterations, started, first))
+                    echo(_line(record, settings.iterations, resumed_at, first))
                 if record["iteration"] % settings.checkpoint_every == 0:
                     save_checkpoint(state, run_dir)
                     saved = record["iteration"]
-                if settings.time_limit_minutes and now - started > 60 * settings.time_limit_minutes:
+                if (settings.time_limit_minutes
+                        and now - resumed_at > 60 * settings.time_limit_minutes):
                     echo(f"time limit of {settings.time_limit_minutes:g} min reached")
                     break
     except KeyboardInterrupt:

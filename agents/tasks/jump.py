@@ -26,7 +26,7 @@ exponential coordinates (eq. 3.4, `composite_target`'s sum), with a trained P-VA
 ablation of Fig. 3.6). Either way every joint target is clamped to the joint's limits.
 
 Reward (eqs. 3.2, 3.16), sparse, at success only:
-    r = r_complete · r_ω · r_safety · r_naturalness (· r_novelty in Stage 2: `novelty` hook)
+    r = r_complete · r_ω · r_safety · r_naturalness (· r_novelty in Stage 2: `with_novelty`)
 with r_complete = 1, r_ω = exp(−0.02 ω̄), ω̄ the mean root angular speed over the episode's
 control steps, r_safety = `unsafe_landing` (0.7) for an unsafe landing, else 1 — unsafe is
 head-first (the neck link among the first links to touch the block) or, with
@@ -56,6 +56,7 @@ keeps stable), `gravity` (e.g. Mars, [0, −3.711, 0]) and `landing = "feet"`.
 
 import copy
 import dataclasses
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,6 +88,7 @@ TIME_AFTER_TAKEOFF = 2.0    # s
 CONTROL_RATES = (10.0, 15.0, 20.0, 30.0)
 LANDINGS = ("not_head_first", "feet")
 ACTIONS = ("pvae", "pd")
+FAILURES = ("hit_bar", "on_ground", "blew_up", "timeout")
 CAST_GAIN = 1e6             # N·m/rad of the cast knee's servo (kd = CAST_GAIN / 100)
 
 
@@ -300,6 +302,15 @@ class JumpEnv:
         self.episode_steps = settings.episode_steps
         self.curriculum = JumpCurriculum(settings)
         self.control_hz = settings.control_hz
+        self.novelty = None                                  # Stage 2: `with_novelty`
+
+    def with_novelty(self, novelty):
+        """This environment with the reward × `novelty(features)` (Stage 2's r_novelty, eq. 3.2):
+        `features` are the episode's strategy features at its success — `cross_rotvec` (3,)
+        and `up_angle` — and `novelty` a traced function of them with values in [0, 1]."""
+        twin = copy.copy(self)
+        twin.novelty = novelty
+        return twin
 
     def variant(self, control_hz):
         """This environment with another control rate (the curriculum's static key)."""
@@ -390,8 +401,9 @@ class JumpEnv:
                 "up_angle": zero, "clearance": zero, "peak_com": com[1],
                 "landed": jnp.zeros((), bool), "unsafe": jnp.zeros((), bool)}
         return start_of_episode(physics, body_observation(self.model, physics.q, physics.qd),
-                                key, task, self._metrics(task, *(jnp.zeros((), bool),) * 2,
-                                                         zero, jnp.zeros((), bool)))
+                                key, task, self._metrics(
+                                    task, *(jnp.zeros((), bool),) * 2, zero,
+                                    dict.fromkeys(FAILURES, jnp.zeros((), bool))))
 
     def _crossing(self, task, geometry=None):
         """The per-substep observer: the root's orientation at the first substep where the
@@ -444,35 +456,46 @@ class JumpEnv:
         success = past & landed & finite
         others = np.arange(len(on_block)) != self._takeoff_foot
         elapsed = (state.steps + 1) * self.control_dt
-        failed = (touched[:, self._bar].any() | jnp.any(touched[:, 0] & others) | ~finite
-                  | (elapsed >= TIME_AFTER_TAKEOFF - 1e-6)) & ~success
+        causes = {"hit_bar": touched[:, self._bar].any(),
+                  "on_ground": jnp.any(touched[:, 0] & others),
+                  "blew_up": ~finite, "timeout": elapsed >= TIME_AFTER_TAKEOFF - 1e-6}
+        causes = {name: causes[name] & ~success for name in FAILURES}
+        failed = functools.reduce(jnp.logical_or, causes.values())
         reward, terms = self.reward(task, state.steps + 1)
         reward = jnp.where(success, reward, 0.0)
         obs = body_observation(self.model, physics.q, physics.qd)
         return end_of_step(state, physics, obs, reward, success | failed, task,
-                           self._metrics(task, success, failed, reward, ~finite),
+                           self._metrics(task, success, failed, reward, causes),
                            self.episode_steps)
 
     def reward(self, task, steps):
-        """r_ω · r_safety · r_naturalness of an episode of `steps` control steps (r_complete = 1;
-        the caller pays it at success only), and the terms."""
+        """r_ω · r_safety · r_naturalness (· r_novelty with `with_novelty`) of an episode of
+        `steps` control steps (r_complete = 1; the caller pays it at success only), and the
+        terms."""
         steps = jnp.maximum(steps, 1).astype(task["omega_sum"].dtype)
         terms = {"omega": jnp.exp(-0.02 * task["omega_sum"] / steps),
                  "safety": jnp.where(task["unsafe"], self.settings.unsafe_landing, 1.0),
                  "naturalness": pvae.naturalness_of_norm(task["offset_sum"] / steps,
                                                          task["c_offset"])}
-        return terms["omega"] * terms["safety"] * terms["naturalness"], terms
+        if self.novelty is not None:
+            terms["novelty"] = self.novelty({"cross_rotvec": task["cross_rotvec"],
+                                             "up_angle": task["up_angle"]})
+        return functools.reduce(jnp.multiply, terms.values()), terms
 
-    def _metrics(self, task, success, failed, reward, blew_up):
+    def _metrics(self, task, success, failed, reward, causes):
         """Per step; the `episode/` ones mean something where an episode ended (the trainer
-        averages them over ended episodes only)."""
+        averages them over ended episodes only): success, failure and each failure's cause
+        (`causes`: hit_bar, on_ground — a link other than the take-off foot —, blew_up,
+        timeout; more than one may hold), and the strategy features."""
         dtype = task["clearance"].dtype
         f = lambda v: jnp.asarray(v, dtype)
         return {"episode/success": f(success), "episode/failure": f(failed),
+                **{f"episode/{name}": f(cause) for name, cause in causes.items()},
                 "episode/crossed": f(task["crossed"]), "episode/up_angle": task["up_angle"],
+                **{f"episode/cross_rotvec_{axis}": task["cross_rotvec"][k]
+                   for k, axis in enumerate("xyz")},
                 "episode/clearance": task["clearance"], "episode/peak_com": task["peak_com"],
-                "episode/difficulty": f(task["difficulty"]), "episode/reward": f(reward),
-                "episode/blew_up": f(blew_up)}
+                "episode/difficulty": f(task["difficulty"]), "episode/reward": f(reward)}
 
 
 def _make(settings, data_dir):
