@@ -20,8 +20,9 @@ loops are compiled, not which operations run; fast-math stays off, and in float6
 rollout agrees with XLA's defaults to 1e-9 (tests/test_xla_options.py).
 
 `simulation.simulate` and `simulate_batch` compile with them for every method but `sparse`,
-whose LTDL factorisation runs slower under them; the training iteration (rollout and PPO update
-in one program) too: its rollout runs 2.4× as fast, its update 1.2–1.4× slower. A caller can
+whose LTDL factorisation runs slower under them; the training iteration's rollout too (2.4× as
+fast), but not its PPO update, which runs 1.2–1.5× slower under them and is compiled as a
+second program with XLA's defaults (`agents.rl.trainer.Trainer.iteration`). A caller can
 pass `simulation_options()` to its own `jax.jit(..., compiler_options=...)` when its program is
 mostly simulation. Inside an outer `jit` the outer program's options apply.
 

@@ -435,3 +435,19 @@ def test_bad_jump_settings_name_the_key(override, message, tmp_path, data_dir):
         train_commands.train("configs/highjump.toml", tmp_path / "run",
                              ["run.iterations=1", override], data_dir=data_dir)
     assert "highjump" in str(error.value)
+
+
+def test_a_blown_up_but_finite_step_ends_the_episode_in_the_state_before(highjump, high_step):
+    """A simulation can grow for a while before it overflows: a step to speeds of 1e20, still
+    finite, is kept out of the episode like a NaN (it overflowed the observation statistics of a
+    training), and the jump episode fails as blown up."""
+    from agents.tasks import common
+    state = highjump.reset(highjump.default_params(), jax.random.PRNGKey(0))
+    huge = state.physics.replace(qd=state.physics.qd.at[6].set(1e20))
+    kept, sound = common.keep_sound(huge, state.physics)
+    assert not bool(sound)
+    np.testing.assert_array_equal(kept.qd, state.physics.qd)
+    stepped = high_step(highjump.default_params(), state.replace(physics=huge),
+                        _hold(highjump, highjump.q0))
+    assert bool(stepped.terminated) and float(stepped.metrics["episode/blew_up"]) == 1.0
+    np.testing.assert_array_equal(stepped.physics.qd, huge.qd)          # the state before

@@ -2,20 +2,21 @@
 
 `Trainer(env, env_params, run, ppo)` builds `iteration(state) -> (state, metrics, finite)`: a
 rollout of `steps_per_iteration` control steps for `envs` environments, the observation
-statistics merged in, then the PPO update — all one jitted function, compiled with the
-simulator's XLA options (`jaxsim.xla_options`). With them, and the environments stepped with
-the batch innermost, the rollout runs 2.4× faster; the update runs 1.2–1.4× slower under them;
-the iteration 1.44× faster (docs/benchmarks.md, PPO "Throughput"). `TrainState` holds
+statistics merged in, then the PPO update — two compiled programs, the rollout with the
+simulator's XLA options (`jaxsim.xla_options`; with them, and the environments stepped with the
+batch innermost, it runs 2.4× faster) and the rest with XLA's defaults (the update runs
+1.2–1.5× slower under the simulator's; docs/benchmarks.md, PPO "Throughput" and "The jump
+tasks: training throughput"). `TrainState` holds
 everything that evolves (networks, optimisers, observation statistics, environments, PRNG key),
 so a checkpoint is one msgpack file and resuming from it continues bit for bit.
 
 A task's curriculum (`agents.rl.curriculum`, the env's `curriculum` attribute) is part of that
 state: the iteration gives the environments the task parameters of the current difficulty, and
-advances the difficulty by the iteration's reward, inside the compiled function. The task
+advances the difficulty by the iteration's reward, inside the compiled programs. The task
 parameters go to the environments one set per environment (`env_params` broadcast along the
 batch, or given per environment with `params_per_env`), so they may differ within a batch. A
 curriculum whose schedule changes something that shapes the program (the control rate) names it
-by a static key: the trainer compiles one iteration per key, with the env's `variant(key)`.
+by a static key: the trainer compiles one rollout per key, with the env's `variant(key)`.
 
 The Python loop in `run` only logs (`metrics.jsonl`, one line per iteration), shows progress,
 checkpoints atomically every `checkpoint_every` iterations and at the end, and on Ctrl-C saves

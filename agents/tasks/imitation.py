@@ -243,7 +243,7 @@ class ImitationEnv:
         stepped, touched = common.simulate_control_step(
             self.model, world, state.physics, self.pd_target(q_ref, action), self.sim_dt,
             self.settings.substeps, self.settings.method, target_velocity)
-        physics, finite = common.keep_finite(stepped, state.physics)
+        physics, finite = common.keep_sound(stepped, state.physics)
         fell = jnp.any(touched[:, self._ground] & ~self._may_touch) | ~finite
         terms, angles = self.reward_terms(physics.q, physics.qd, q_ref, qd_ref)
         reward = jnp.where(finite, self.reward(terms), 0.0)

@@ -437,7 +437,7 @@ class JumpEnv:
             self.model, world, state.physics, target, 1.0 / self.settings.sim_hz,
             self.substeps, self.settings.method, observe=self._crossing(task, geometry),
             observed=task)
-        physics, finite = common.keep_finite(stepped, state.physics)
+        physics, finite = common.keep_sound(stepped, state.physics)
         task = jax.tree_util.tree_map(lambda new, old: jnp.where(finite, new, old), task,
                                       state.task)          # what a blown-up substep saw is dropped
         omega = jnp.linalg.norm(physics.qd[:3])
