@@ -1,4 +1,4 @@
-"""The jump tasks on this machine: training throughput at the control rates of the curriculum.
+"""The jump tasks on this machine: training throughput, control-rate variants, a run's figures.
 
     python benchmarks/jump.py speed [--task highjump|obstacle] [--rates 10 30]
         samples/s of the training iteration at each control rate, split into the rollout and
@@ -119,7 +119,7 @@ def _azimuth(direction) -> float:
 
 
 def report(args):
-    run = Path(args.run)
+    run = Path(args.run_dir)
     data = reference_data("jump")
     summary, env, poses = train_commands.evaluate(run, episodes=args.episodes, data_dir=data,
                                                   echo=lambda _: None)
@@ -167,7 +167,7 @@ def main():
     p.add_argument("--repeats", type=int, default=5)
     p.set_defaults(run=substeps)
     p = sub.add_parser("report")
-    p.add_argument("run")
+    p.add_argument("run_dir")
     p.add_argument("--name", required=True)
     p.add_argument("--episodes", type=int, default=16)
     p.set_defaults(run=report)
