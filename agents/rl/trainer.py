@@ -111,7 +111,8 @@ class Trainer:
         self.ppo = make_ppo(env.observation_size, env.action_size, ppo)
         self.policy_apply, self.value_apply = self.ppo.policy_apply, self.ppo.value_apply
         self.rollout = self._rollout_of(env)
-        self._compiled, self._learn_compiled = {}, None
+        self._compiled = {}                                  # rollouts, by static key
+        self._learn_compiled = jax.jit(self._learn)
 
     def _rollout_of(self, env):
         return rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
@@ -171,8 +172,6 @@ class Trainer:
             rollout = self._rollout_of(self.env_for(state.curriculum))
             self._compiled[key] = jax.jit(functools.partial(self._collect, rollout),
                                           compiler_options=xla_options.simulation_options())
-        if self._learn_compiled is None:
-            self._learn_compiled = jax.jit(self._learn)
         return self._learn_compiled(state, self._compiled[key](state))
 
     def _collect(self, rollout, state: TrainState):
