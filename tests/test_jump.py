@@ -93,9 +93,26 @@ def test_the_takeoff_frame_is_in_a_support_phase_of_the_takeoff_foot(kind, highj
     times, support = takeoff_state.support_flags(env.model, _clip(env), env.settings.feet)
     foot = env.settings.feet.index(frame.foot)
     at = np.argmin(np.abs(times - frame.time))
-    assert support[at, foot]
+    assert support[at, foot] and not np.delete(support[at], foot).any()   # single support
     # ... and the flight after it is the clip's longest time with neither foot down.
     assert frame.flight[1] - frame.flight[0] > 0.3
+
+
+def test_the_takeoff_frame_is_midway_through_the_single_support_before_the_flight():
+    times = np.arange(12) / 10
+    #      frame:       0  1  2  3  4  5  6  7  8  9 10 11
+    right = np.array([1, 1, 0, 0, 0, 1, 1, 1, 0, 0, 0, 1], bool)
+    left = np.array([0, 0, 0, 1, 1, 1, 1, 1, 1, 0, 0, 0], bool)
+    frame = takeoff_state.takeoff_from_support(times, np.stack([right, left], 1), 1.2,
+                                               ("right", "left"))
+    # The longest flight is frames 9–10; before it the left foot supports frames 3–8, alone
+    # only in frame 8 after the double support of frames 5–7.
+    assert frame.foot == "left" and frame.support == (0.8, 0.8) and frame.time == 0.8
+    assert frame.flight == (0.9, 1.1)
+    both = np.stack([right, left], 1)
+    both[8] = True
+    with pytest.raises(ConfigError, match="box.txt: the clip takes off from both feet"):
+        takeoff_state.takeoff_from_support(times, both, 1.2, ("right", "left"), "box.txt")
 
 
 def _clip(env):
@@ -269,6 +286,21 @@ def test_the_bar_turns_with_the_approach_angle_about_the_takeoff_point(highjump)
         near = jnp.dot(block - origin, normal) - world.box_half_size[1, 0]
         assert float(near) == pytest.approx(jump.BAR_DISTANCE + 0.02)
     assert float(world.friction[highjump.world.object_index("block")]) == 0.4
+
+
+def test_the_obstacle_stands_ahead_of_the_takeoff_point_with_the_block_past_it(obstacle):
+    params = {**obstacle.default_params(), "difficulty": jnp.asarray(0.3)}
+    task = obstacle.reset(params, jax.random.PRNGKey(0)).task
+    normal, origin, far, cross, top, *_ = obstacle.geometry(task)
+    np.testing.assert_allclose(normal, obstacle.heading[:, 0], atol=1e-12)   # straight ahead
+    world = obstacle.world_for(task)
+    (box, block), (box_half, block_half) = world.box_center, world.box_half_size
+    near = float(jnp.dot(box - origin, normal) - box_half[0])
+    assert near == pytest.approx(jump.OBSTACLE_DISTANCE)
+    assert float(box_half[0]) * 2 == pytest.approx(0.3) and float(box_half[1]) * 2 == 0.5
+    assert float(far) == pytest.approx(near + 0.3) and float(cross) == pytest.approx(near + 0.15)
+    assert float(jnp.dot(block - origin, normal) - block_half[0]) == pytest.approx(near + 0.32)
+    assert float(block_half[1]) * 2 == pytest.approx(0.02) and float(top) == 0.5
 
 
 # ------------------------------------------------------------------------- schedules

@@ -8,9 +8,9 @@ World (all in the facing frame at take-off, turned by α for the high jump; `jum
              plane 1.2 m from the take-off point along its normal n(α); the landing block:
              4 m deep and 6 m wide, its centre 2.02 m past the bar plane (its near face 2 cm
              behind it), height clip(z − 0.7, 0.02, 0.75) m, friction 0.4.
-  obstacle   a box 0.5 m high and z wide (along the approach), its near face 1.2 m ahead of
-             the take-off point; a landing block of the same kind 2 cm past its far face, its
-             height the rule above for a 0.5 m bar (2 cm).
+  obstacle   a box 0.5 m high and z wide (along the approach), its near face 0.5 m ahead of
+             the take-off point (`OBSTACLE_DISTANCE`); a landing block of the same kind 2 cm
+             past its far face, its height the rule above for a 0.5 m bar (2 cm).
 Rules, checked every control step from what happened in its substeps:
   failure    a link touched the bar/obstacle; a link other than the take-off foot touched the
              ground; 2 s passed since take-off without success; the simulation blew up.
@@ -76,7 +76,13 @@ from jaxsim.characters.athlete import joint_dofs, scaled_torque_limits
 from jaxsim.world import Box, make_world
 
 KINDS = ("highjump", "obstacle")
-BAR_DISTANCE = 1.2          # m, take-off point to the bar plane (obstacle: its near face)
+BAR_DISTANCE = 1.2          # m, take-off point to the bar plane (the release's)
+# m, take-off point to the obstacle's near face. Neither the thesis nor the issue gives it; the
+# box-jump run's own flight from its take-off frame (1.5 s) lifts its lowest foot point above
+# 0.5 m 0.24 s later, its rearmost link then 0.1 m ahead of the take-off point, and has every
+# link 0.65 m ahead when it lands on its box. At 1.2 m (the bar's distance) the run's 2 m/s
+# would need about 0.75 s in the air to take every link 0.2 m past even a 5 cm box.
+OBSTACLE_DISTANCE = 0.5
 BAR_THICKNESS = 0.05        # m, the wall's
 BAR_LENGTH = 4.0            # m
 BLOCK_OFFSET = 2.02         # m, bar plane to the block's centre
@@ -230,7 +236,7 @@ def jump_geometry(kind, origin, heading, alpha, z, dtype):
         bar_height = z
     else:
         normal = heading @ jnp.array([1.0, 0.0, 0.0], dtype)
-        near = jnp.asarray(BAR_DISTANCE, dtype)
+        near = jnp.asarray(OBSTACLE_DISTANCE, dtype)
         far, cross = near + z, near + z / 2
         thickness, height = z, jnp.asarray(OBSTACLE_HEIGHT, dtype)
         bar_height = height

@@ -5,8 +5,12 @@ becoming airborne": a foot is in support in a clip frame when its ankle is withi
 `SUPPORT_HEIGHT` of the lowest the ankles get in the clip; the flight is the longest run of
 frames with neither foot in support (the jump that ends both of the thesis's reference runs); the
 support phase is the run of frames just before it in which the foot supporting the character at
-the last frame before the flight stays in support; the take-off frame is its middle frame, and
-that foot is the take-off foot.
+the last frame before the flight is the only foot in support; the take-off frame is its middle
+frame, and that foot is the take-off foot. Single support, because the jump takes off from one
+leg (§3.6.1) and every other link touching the ground is a failure: the box-jump run plants its
+right foot beside its left for 0.1 s (1.37–1.43 s) before the left alone pushes off, and a
+take-off state inside that double support starts with its free foot on the ground. The curved
+sprint has no double support, so its frame is the same either way.
 
 The facing-direction-invariant frame at take-off. DeepMimic's characters face along their root's
 X axis, so the frame's axes are, in the world:
@@ -106,19 +110,29 @@ def _runs(flags):
 
 def find_takeoff(model, clip, feet=("right_ankle", "left_ankle"), source="clip"):
     """The take-off frame of a run-up clip (see the module docstring); a ConfigError naming
-    `source` when the clip has no flight preceded by a support phase."""
+    `source` when the clip has no flight preceded by a support phase or takes off from both
+    feet."""
     times, support = support_flags(model, clip, feet)
+    return takeoff_from_support(times, support, float(clip.duration), feet, source)
+
+
+def takeoff_from_support(times, support, duration, feet, source="clip"):
+    """`find_takeoff` from the frame times (F,) and support flags (F, len(feet)) of a clip."""
     flights = _runs(~support.any(axis=1))
     flights = [f for f in flights if f[0] > 0]
     if not flights:
         raise ConfigError(f"{source}: the clip never leaves the ground after a support phase")
     start, stop = max(flights, key=lambda f: f[1] - f[0])
     foot = int(np.argmax(support[start - 1]))
-    phase = [r for r in _runs(support[:, foot]) if r[1] == start][0]
-    middle = (phase[0] + phase[1] - 1) // 2
-    end = times[stop] if stop < len(times) else float(clip.duration)
-    return TakeoffFrame(float(times[middle]), feet[foot], (float(times[phase[0]]),
-                        float(times[phase[1] - 1])), (float(times[start]), float(end)))
+    alone = support[:, foot] & ~np.delete(support, foot, axis=1).any(axis=1)
+    phase = [r for r in _runs(alone) if r[1] == start]
+    if not phase:
+        raise ConfigError(f"{source}: the clip takes off from both feet (both are in support "
+                          f"at {times[start - 1]:.3f} s, the last frame before its flight)")
+    first, last = phase[0][0], phase[0][1] - 1
+    end = times[stop] if stop < len(times) else duration
+    return TakeoffFrame(float(times[(first + last) // 2]), feet[foot],
+                        (float(times[first]), float(times[last])), (float(times[start]), float(end)))
 
 
 def facing_velocities(q, qd):
