@@ -386,6 +386,23 @@ def test_a_resumed_run_continues_the_curriculum_bit_for_bit(tmp_path):
     assert np.all(np.asarray(resumed.runner.envs.obs[:, 0]) >= difficulty - 0.1 - 1e-6)
 
 
+def test_a_run_stops_where_the_curriculum_reaches_the_stop_difficulty(tmp_path):
+    run = trainer_lib.RunSettings(task="reach", envs=8, steps_per_iteration=8, iterations=50,
+                                  stop_difficulty=0.2)
+    env = Hurdle()
+    trainer = trainer_lib.Trainer(env, env.default_params(), run,
+                                  PPOSettings(hidden=(8,), minibatch_size=16))
+    lines = []
+    state = trainer_lib.run(trainer, trainer.init(), tmp_path, echo=lines.append)
+    difficulty = [r[trainer_lib.DIFFICULTY] for r in trainer_lib.read_metrics(tmp_path)]
+    # The last iteration is the first at 0.2 (two rises of 0.1; float32 sums to 1e-5).
+    assert difficulty[-1] == pytest.approx(0.2, abs=1e-5) and max(difficulty[:-1]) < 0.15
+    assert trainer_lib.completed_iterations(state) == len(difficulty) < 50
+    assert lines[-1].startswith("difficulty 0.2 reached at")
+    saved = trainer_lib.load_checkpoint(trainer.init(), tmp_path)
+    assert trainer_lib.completed_iterations(saved) == len(difficulty)
+
+
 def test_task_parameters_may_differ_per_environment(highjump):
     params = jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), highjump.default_params())
     params["difficulty"] = jnp.array([0.5, 1.4])

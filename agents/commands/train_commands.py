@@ -285,8 +285,8 @@ def plot(run_dir, quiet=False):
         return None
     samples = np.array([r["samples"] for r in records], float)
     panels = [("return", "mean episode return"), ("episode_length", "mean episode length (steps)")]
-    if "curriculum/difficulty" in records[-1]:              # a task with a curriculum (Fig. 3.10)
-        panels.append(("curriculum/difficulty", "difficulty z (bar height / width, m)"))
+    if trainer_lib.DIFFICULTY in records[-1]:               # a task with a curriculum (Fig. 3.10)
+        panels.append((trainer_lib.DIFFICULTY, "difficulty z (bar height / width, m)"))
     fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.5))
     for ax, (key, label) in zip(axes, panels):
         values = np.array([np.nan if r.get(key) is None else r[key] for r in records], float)

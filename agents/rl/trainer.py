@@ -49,6 +49,7 @@ from jaxsim.atomic import atomic_path
 
 CHECKPOINT = "checkpoint.msgpack"
 METRICS = "metrics.jsonl"
+DIFFICULTY = "curriculum/difficulty"      # the metric a curriculum logs its difficulty as
 
 
 class TrainingError(ValueError):
@@ -68,6 +69,7 @@ class RunSettings:
     checkpoint_every: int = 50        # iterations
     progress_every: int = 1           # iterations between progress-line updates
     time_limit_minutes: float = 0.0   # stop (with a checkpoint) after this long; 0: no limit
+    stop_difficulty: float = 0.0      # stop once the curriculum reaches it (z_freeze); 0: never
 
     # What the computation (and the checkpoint) of a run is made of; the rest says how long
     # the loop runs and how often it reports.
@@ -78,8 +80,9 @@ class RunSettings:
                      "progress_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1; got {getattr(self, name)}")
-        if not self.time_limit_minutes >= 0:
-            raise ValueError(f"time_limit_minutes must be ≥ 0; got {self.time_limit_minutes}")
+        for name in ("time_limit_minutes", "stop_difficulty"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be ≥ 0; got {getattr(self, name)}")
 
     @property
     def samples_per_iteration(self) -> int:
@@ -260,8 +263,8 @@ def _line(record, total, resumed_at, first):
     left = elapsed / max(done, 1) * (total - record["iteration"])
     ret = record["return"]
     task = ""                                       # what a task with a curriculum shows
-    if record.get("curriculum/difficulty") is not None:
-        task += f"  z {record['curriculum/difficulty']:.2f}"
+    if record.get(DIFFICULTY) is not None:
+        task += f"  z {record[DIFFICULTY]:.2f}"
     if record.get("env/episode/success") is not None:
         task += f"  success {100 * record['env/episode/success']:5.1f}%"
     return (f"iter {record['iteration']:>5}/{total}  {record['samples_per_second']:>8.0f} "
@@ -278,7 +281,8 @@ def _json_value(value):
 
 
 def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
-    """Train until `iterations` are done (or the time limit passes), logging, showing progress
+    """Train until `iterations` are done (or the time limit passes, or the curriculum reaches
+    `stop_difficulty`), logging, showing progress
     and checkpointing in run_dir; Ctrl-C checkpoints and stops."""
     run_dir = Path(run_dir)
     settings = trainer.run_settings
@@ -316,12 +320,22 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
                         and now - resumed_at > 60 * settings.time_limit_minutes):
                     echo(f"time limit of {settings.time_limit_minutes:g} min reached")
                     break
+                if _reached(record, settings.stop_difficulty):
+                    echo(f"difficulty {record[DIFFICULTY]:g} reached at "
+                         f"{record['seconds'] / 60:.1f} min")
+                    break
     except KeyboardInterrupt:
         echo(f"\ninterrupted: checkpoint at iteration {completed_iterations(state)} in {run_dir}")
         save_checkpoint(state, run_dir)
         raise
     save_checkpoint(state, run_dir)
     return state
+
+
+def _reached(record, stop_difficulty) -> bool:
+    """Whether an iteration's curriculum difficulty reached `stop_difficulty` (0: never); to
+    within 1e-5, for a float32 difficulty raised by repeated steps."""
+    return bool(stop_difficulty) and record.get(DIFFICULTY, -np.inf) >= stop_difficulty - 1e-5
 
 
 def _non_finite(state: TrainState, metrics, run_dir, saved) -> TrainingError:
