@@ -8,6 +8,11 @@
         substeps: one compiled variant per rate) against a traced number of substeps (a
         `fori_loop` with the count as an argument: one program for every rate), the count the
         same for the whole batch and one per environment
+    python benchmarks/jump.py explore [--task obstacle] [--episodes 512] [--sigma 0.8]
+        how often random open-loop plain-PD targets (the take-off pose plus Gaussian noise,
+        one draw per control step at 10 Hz) clear the curriculum's first difficulty from each
+        row of Table 3.3/3.4, as printed and with ω_z negated: whether a sparse-reward
+        training from that take-off state has any first success to learn from
     python benchmarks/jump.py report RUN_DIR --name highjump_fosbury
         the figures of a training run into docs/: its curriculum curve (`takeoff plot`), the
         deterministic jump as a filmstrip with bar and mat, the peak pose from two views
@@ -31,7 +36,8 @@ import numpy as np
 import training_speed
 from agents.commands import train_commands
 from agents.rl import trainer as trainer_lib
-from agents.tasks import jump
+from agents.pose import pose_features
+from agents.tasks import jump, takeoff_state
 from jaxsim import allocator, batch_last, kinematics, render, simulation, xla_options
 from jaxsim.atomic import write_text_atomic
 from spd import machine_info, reference_data
@@ -113,6 +119,54 @@ def substeps(args):
     print(f"→ {out}")
 
 
+def explore(args):
+    settings_type = jump.HighJumpSettings if args.task == "highjump" else jump.ObstacleSettings
+    env = jump.JumpEnv(settings_type(actions="pd", control_schedule=False, control_hz=10.0),
+                       reference_data("jump"))
+    hold = pose_features.target_to_exp(env.model, pose_features.pd_target(env.model, env.q0))
+    names = ("success", "hit_bar", "on_ground", "blew_up", "timeout")
+
+    def episode(x, actions):
+        """The outcome (index into `names`, or −1: still running) of one open-loop episode."""
+        params = {**env.default_params(), "takeoff": x}
+        state = env.reset(params, jax.random.PRNGKey(0))
+
+        def control_step(carry, action):
+            state, outcome = carry
+            state = env.step(params, state, action)
+            ended = jnp.stack([state.metrics[f"episode/{n}"] > 0 for n in names])
+            now = jnp.where(ended.any(), jnp.argmax(ended), -1)
+            return (state, jnp.where(outcome < 0, now, outcome)), None
+
+        (_, outcome), _ = jax.lax.scan(control_step, (state, jnp.asarray(-1)), actions)
+        return outcome
+
+    batch = jax.jit(jax.vmap(episode, in_axes=(None, 0)))
+    steps = int(round(jump.TIME_AFTER_TAKEOFF * env.control_hz))     # every episode ends
+    rows, features = ((takeoff_state.HIGHJUMP_ROWS, takeoff_state.HIGHJUMP_FEATURES)
+                      if args.task == "highjump" else
+                      (takeoff_state.OBSTACLE_ROWS, takeoff_state.OBSTACLE_FEATURES))
+    z = features.index("omega_z")
+    key, results = jax.random.PRNGKey(args.seed), []
+    for name, row in rows.items():
+        for negated in (False, True):
+            x = np.array(row, np.float32)
+            x[z] = -x[z] if negated else x[z]
+            key, draw = jax.random.split(key)
+            actions = hold + args.sigma * jax.random.normal(
+                draw, (args.episodes, steps) + hold.shape)
+            outcome = np.asarray(batch(jnp.asarray(x), actions))
+            shares = {n: float(np.mean(outcome == i)) for i, n in enumerate(names)}
+            results.append({"row": name, "omega_z_negated": negated, "x": x.tolist(), **shares})
+            print(f"{name:>28}{' (ω_z negated)' if negated else '':>15}  x {np.round(x, 2)}  "
+                  f"success {int(round(shares['success'] * args.episodes)):3d}/{args.episodes}"
+                  f"  hit {shares['hit_bar']:.2f}  ground {shares['on_ground']:.2f}")
+    out = RESULTS / f"{args.task}_explore.json"
+    write_text_atomic(out, json.dumps({"machine": machine_info(), "episodes": args.episodes,
+                                       "sigma": args.sigma, "results": results}, indent=2) + "\n")
+    print(f"→ {out}")
+
+
 def _azimuth(direction) -> float:
     """The camera azimuth (degrees, `jaxsim.render.camera`) that looks along −direction."""
     return float(np.degrees(np.arctan2(direction[0], direction[2])))
@@ -133,15 +187,16 @@ def report(args):
     world = env.world_for(task)
     times = np.arange(1, len(poses) + 1) * env.control_dt
     outcome = "cleared" if summary["episode/success"] else "failed"
+    thing = "bar" if env.kind == "highjump" else "obstacle"
     render.filmstrip(env.model, poses, DOCS / f"{args.name}_filmstrip.png", world=world,
                      n_panels=min(10, len(poses)), times=times, azimuth=_azimuth(along),
                      title=f"{args.name}: the deterministic jump at z = {z:.2f} m ({outcome}), "
-                           f"seen along the {'bar' if env.kind == 'highjump' else 'obstacle'}")
+                           f"seen along the {thing}")
     heights = [float(kinematics.center_of_mass(env.model, jnp.asarray(q))[1]) for q in poses]
     peak = int(np.argmax(heights))
     render.views(env.model, poses[peak], DOCS / f"{args.name}_peak.png", world=world,
                  azimuths=(_azimuth(along), _azimuth(normal)),
-                 labels=("along the bar", "facing the bar"),
+                 labels=(f"along the {thing}", f"facing the {thing}"),
                  title=f"peak pose (t = {times[peak]:.2f} s, centre of mass {heights[peak]:.2f} m)")
     records = trainer_lib.read_metrics(run)
     result = {"machine": machine_info(), "run": str(run), "iterations": records[-1]["iteration"],
@@ -166,6 +221,12 @@ def main():
     p.add_argument("--envs", type=int, default=256)
     p.add_argument("--repeats", type=int, default=5)
     p.set_defaults(run=substeps)
+    p = sub.add_parser("explore")
+    p.add_argument("--task", choices=("highjump", "obstacle"), default="obstacle")
+    p.add_argument("--episodes", type=int, default=512)
+    p.add_argument("--sigma", type=float, default=0.8)
+    p.add_argument("--seed", type=int, default=1)
+    p.set_defaults(run=explore)
     p = sub.add_parser("report")
     p.add_argument("run_dir")
     p.add_argument("--name", required=True)
