@@ -282,8 +282,8 @@ def _json_value(value):
 
 def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
     """Train until `iterations` are done (or the time limit passes, or the curriculum reaches
-    `stop_difficulty`), logging, showing progress
-    and checkpointing in run_dir; Ctrl-C checkpoints and stops."""
+    `stop_difficulty`), logging, showing progress and checkpointing in run_dir; Ctrl-C
+    checkpoints and stops."""
     run_dir = Path(run_dir)
     settings = trainer.run_settings
     first = completed_iterations(state)

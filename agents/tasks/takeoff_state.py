@@ -132,7 +132,8 @@ def takeoff_from_support(times, support, duration, feet, source="clip"):
     first, last = phase[0][0], phase[0][1] - 1
     end = times[stop] if stop < len(times) else duration
     return TakeoffFrame(float(times[(first + last) // 2]), feet[foot],
-                        (float(times[first]), float(times[last])), (float(times[start]), float(end)))
+                        (float(times[first]), float(times[last])),
+                        (float(times[start]), float(end)))
 
 
 def facing_velocities(q, qd):
