@@ -37,7 +37,7 @@ import training_speed
 from agents.commands import train_commands
 from agents.rl import trainer as trainer_lib
 from agents.pose import pose_features
-from agents.tasks import jump, takeoff_state
+from agents.tasks import jump, registry, takeoff_state
 from jaxsim import allocator, batch_last, kinematics, render, simulation, xla_options
 from jaxsim.atomic import write_text_atomic
 from spd import machine_info, reference_data
@@ -120,11 +120,11 @@ def substeps(args):
 
 
 def explore(args):
-    settings_type = jump.HighJumpSettings if args.task == "highjump" else jump.ObstacleSettings
-    env = jump.JumpEnv(settings_type(actions="pd", control_schedule=False, control_hz=10.0),
-                       reference_data("jump"))
+    settings = registry.get(args.task).settings(actions="pd", control_schedule=False,
+                                                control_hz=10.0)
+    env = jump.JumpEnv(settings, reference_data("jump"))
     hold = pose_features.target_to_exp(env.model, pose_features.pd_target(env.model, env.q0))
-    names = ("success", "hit_bar", "on_ground", "blew_up", "timeout")
+    names = ("success", *jump.FAILURES)
 
     def episode(x, actions):
         """The outcome (index into `names`, or −1: still running) of one open-loop episode."""

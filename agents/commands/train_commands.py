@@ -123,7 +123,8 @@ def make_env(config: TrainConfig, data_dir=None):
 def make_trainer(config: TrainConfig, data_dir=None) -> trainer_lib.Trainer:
     """The trainer of a config. Configs that differ only in how long the loop runs share one
     trainer, and so its compiled iteration (a resumed run does not compile again)."""
-    loop_only = dict(iterations=1, checkpoint_every=1, progress_every=1, time_limit_minutes=0.0)
+    loop_only = dict(iterations=1, checkpoint_every=1, progress_every=1, time_limit_minutes=0.0,
+                     stop_difficulty=0.0)
     compiled = _compiled_trainer(dataclasses.replace(
         config, run=dataclasses.replace(config.run, **loop_only)), data_dir)
     return compiled.with_run_settings(config.run)
