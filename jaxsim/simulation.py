@@ -9,6 +9,7 @@ All functions act on one character; batch with `jax.vmap`, or faster with `simul
 """
 
 import functools
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -22,15 +23,18 @@ from jaxsim.world import World
 
 
 class SimulationError(ValueError):
-    """A state cannot be simulated (non-finite numbers); the message names the joints."""
+    """Inputs that cannot be simulated (non-finite numbers, a dt that is not > 0) or a rollout
+    that turned non-finite; the message names the joints, control steps and batch members."""
 
 
 def init_state(model: Model, world: World, q, qd=None) -> State:
     """A state ready to step in `world`: friction springs unstretched, no touches recorded yet.
-    `qd` defaults to rest."""
+    `qd` defaults to rest. Outside `jit`, non-finite q or qd raise `SimulationError`."""
     check_layout(model, "q", q, "nq")
     if qd is not None:
         check_layout(model, "qd", qd, "nv")
+    for field, values in (("q", q), ("qd", qd)):
+        _check_finite(model, "init_state", field, values)
     q = jnp.asarray(q, model.mass.dtype)
     qd = jnp.zeros(model.nv, q.dtype) if qd is None else jnp.asarray(qd, q.dtype)
     n_contacts = len(contact.contact_layout(model, world))
@@ -43,24 +47,75 @@ def is_finite(state: State):
     return jnp.all(jnp.isfinite(state.q)) & jnp.all(jnp.isfinite(state.qd))
 
 
+def first_non_finite(trajectory: State):
+    """The first control step whose q or q̇ holds a non-finite number, or -1 when none does, for
+    the states after each control step that `simulate` returns (time axis second to last:
+    one index, or one per member for `simulate_batch`'s). Jittable: the flag to check after a
+    rollout inside `jit`, where `simulate` cannot raise."""
+    bad = ~(jnp.all(jnp.isfinite(trajectory.q), -1) & jnp.all(jnp.isfinite(trajectory.qd), -1))
+    return jnp.where(jnp.any(bad, -1), jnp.argmax(bad, -1), -1)
+
+
 def _owners(offsets, index):
     return np.searchsorted(offsets, index, side="right") - 1
 
 
-def check_state(model: Model, state: State, where: str = "state"):
-    """Raise `SimulationError` naming the joints whose q or q̇ entries are not finite."""
+def _concrete(*values) -> bool:
+    """Whether none of the values is traced (then they can be checked in Python)."""
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(values))
+
+
+def _listing(indices, limit: int = 8) -> str:
+    shown = ", ".join(str(int(i)) for i in indices[:limit])
+    return shown if len(indices) <= limit else f"{shown}, … ({len(indices)} in all)"
+
+
+def _non_finite(model: Model, field: str, values, axes=()):
+    """None when `values` (..., nq) for field "q" or (..., nv) for "qd" are all finite; else
+    which entries are not, with their joints, and along each leading axis named in `axes` (such
+    as "in batch member", "at control step") where."""
+    bad = ~np.isfinite(np.asarray(values))
+    if not bad.any():
+        return None
     topo = model.topology
-    problems = []
-    for field, values, offsets in (("q", state.q, topo.q_offsets),
-                                   ("qd", state.qd, topo.dof_offsets)):
-        values = np.asarray(values)
-        bad = np.flatnonzero(~np.isfinite(values.reshape(-1, values.shape[-1])).all(0))
-        if len(bad):
-            joints = sorted({topo.names[i] for i in _owners(offsets, bad)},
-                            key=topo.names.index)
-            problems.append(f"{field}[{', '.join(map(str, bad))}] (joints {', '.join(joints)})")
+    offsets = topo.q_offsets if field == "q" else topo.dof_offsets
+    columns = np.flatnonzero(bad.reshape(-1, bad.shape[-1]).any(0))
+    joints = sorted({topo.names[i] for i in _owners(offsets, columns)}, key=topo.names.index)
+    text = f"{field}[{', '.join(map(str, columns))}] (joints {', '.join(joints)})"
+    for axis, name in enumerate(axes):
+        where = np.flatnonzero(bad.any(tuple(a for a in range(bad.ndim) if a != axis)))
+        text += f" {name}{'s' if len(where) > 1 else ''} {_listing(where)}"
+    return text
+
+
+def _check_finite(model: Model, where: str, field: str, values, axes=()):
+    """Raise `SimulationError` when concrete `values` (see `_non_finite`) are not all finite."""
+    if values is not None and _concrete(values):
+        problem = _non_finite(model, field, values, axes)
+        if problem:
+            raise SimulationError(f"{where}: non-finite values in {problem}")
+
+
+def check_state(model: Model, state: State, where: str = "state", axes=()):
+    """Raise `SimulationError` naming the joints whose q or q̇ entries are not finite (for states
+    with leading axes, such as a batch, those named in `axes` say where along them)."""
+    problems = [p for p in (_non_finite(model, "q", state.q, axes),
+                            _non_finite(model, "qd", state.qd, axes)) if p]
     if problems:
         raise SimulationError(f"{where}: non-finite values in " + "; ".join(problems))
+
+
+def _check_dt(dt):
+    """Raise `SimulationError` unless `dt`, when concrete, is a finite number > 0."""
+    if isinstance(dt, jax.core.Tracer):
+        return
+    try:
+        value = float(np.asarray(dt, dtype=float)) if np.ndim(dt) == 0 else None
+    except (TypeError, ValueError):
+        value = None
+    if value is None or not (np.isfinite(value) and value > 0):
+        raise SimulationError("dt must be a finite number > 0 (seconds), got "
+                              f"{repr(dt) if value is None else value}")
 
 
 def step(model: Model, world: World, state: State, target, dt, method: str = "maba",
@@ -69,13 +124,20 @@ def step(model: Model, world: World, state: State, target, dt, method: str = "ma
     given, the velocity `target_velocity` (nv; zero otherwise, as in thesis eq. 2.6).
 
     The state must carry contact memory when the world has contacts (`init_state`). Called
-    outside `jit` the input is checked and a non-finite state raises `SimulationError`; inside
-    `jit`, check `is_finite` on the result. Arrays of the wrong length raise ValueError.
+    outside `jit` the inputs are checked: a non-finite state, target or target velocity, or a dt
+    that is not a finite number > 0, raises `SimulationError`; inside `jit`, check `is_finite`
+    on the result. Arrays of the wrong length raise ValueError.
     """
     check_layout(model, "state.q", state.q, "nq")
     check_layout(model, "state.qd", state.qd, "nv")
-    if not isinstance(state.q, jax.core.Tracer):
+    check_layout(model, "target", target, "nq")
+    if target_velocity is not None:
+        check_layout(model, "target_velocity", target_velocity, "nv")
+    if _concrete(state.q, state.qd):
         check_state(model, state)
+    _check_finite(model, "target", "q", target)
+    _check_finite(model, "target_velocity", "qd", target_velocity)
+    _check_dt(dt)
     q, qd = state.q, state.qd
     f_ext, stretch, touching = None, state.contact_stretch, state.touching
     if world.has_contacts:
@@ -97,7 +159,6 @@ def step(model: Model, world: World, state: State, target, dt, method: str = "ma
     return State(kinematics.integrate(model, q, qd_next, dt), qd_next, stretch, touching)
 
 
-@functools.partial(xla_options.jit, static_argnames=("method", "substeps"))
 def simulate(model: Model, world: World, state: State, targets, dt, method: str = "maba",
              substeps: int = 1, target_velocities=None):
     """Run len(targets) control steps, each holding its target pose (and target velocity, if
@@ -106,10 +167,71 @@ def simulate(model: Model, world: World, state: State, targets, dt, method: str 
     Returns (final state, the states after each control step), the latter with a leading time
     axis. A `lax.scan` over control steps around a `lax.scan` over substeps. Called at the top
     level with any method but sparse, it compiles with `jaxsim.xla_options`.
+
+    Inputs that are not traced are checked first: a non-finite state, target or target
+    velocity, or a dt that is not a finite number > 0, raises `SimulationError` naming the
+    control steps and joints. Called outside `jit`, a trajectory that turns non-finite from
+    finite inputs raises `SimulationError` saying at which control step and in which joints it
+    first did; inside `jit`, check `first_non_finite(trajectory)` (-1 when all is finite).
     """
     check_layout(model, "targets", targets, "nq", leading="T")
     if target_velocities is not None:
         check_layout(model, "target_velocities", target_velocities, "nv", leading="T")
+    _check_inputs(model, "state", state, targets, dt, target_velocities, ())
+    result = _simulate(model, world, state, targets, dt, method, substeps, target_velocities)
+    _check_trajectory(model, "simulate", result[1], dt, substeps)
+    return result
+
+
+def _check_inputs(model: Model, name: str, state: State, targets, dt, target_velocities,
+                  batch_axes):
+    """The checks of `simulate` (`batch_axes` ("in batch member",) for states with a leading
+    batch axis), on the concrete inputs."""
+    if _concrete(state.q, state.qd):
+        check_state(model, state, name, batch_axes)
+
+    def axes(values):       # (T, n) shared by the batch or (batch, T, n)
+        return batch_axes[:np.ndim(values) - 2] + ("at control step",)
+    _check_finite(model, "targets", "q", targets, axes(targets))
+    if target_velocities is not None:
+        _check_finite(model, "target_velocities", "qd", target_velocities,
+                      axes(target_velocities))
+    _check_dt(dt)
+
+
+def _check_trajectory(model: Model, where: str, trajectory: State, dt, substeps: int):
+    """Raise `SimulationError` when a concrete trajectory (T, n), or (batch, T, n), holds
+    non-finite numbers: where they first arose and, for a batch, which members have any."""
+    if not _concrete(trajectory.q, trajectory.qd):
+        return
+    q, qd = np.asarray(trajectory.q), np.asarray(trajectory.qd)
+    bad = ~(np.isfinite(q).all(-1) & np.isfinite(qd).all(-1))       # (..., T)
+    if not bad.any():
+        return
+    k = int(np.flatnonzero(bad.reshape(-1, bad.shape[-1]).any(0))[0])
+    members = np.flatnonzero(bad[:, k]) if bad.ndim == 2 else None
+    at_k = k if members is None else (members, k)
+    problems = [p for p in (_non_finite(model, "q", q[at_k]), _non_finite(model, "qd", qd[at_k]))
+                if p]
+    text = (f"{where}: the trajectory turned non-finite at control step {k} "
+            f"(t = {(k + 1) * substeps * float(dt):.6g} s)")
+    if members is not None:
+        text += f" in batch member{'s' if len(members) > 1 else ''} {_listing(members)}"
+    text += f" from a finite state and targets: {'; '.join(problems)}"
+    if members is not None:
+        every = np.flatnonzero(bad.any(-1))
+        text += (f"; in all, batch member{'s' if len(every) > 1 else ''} {_listing(every)} "
+                 "turn non-finite")
+    raise SimulationError(text + " (inside jit, check first_non_finite(trajectory))")
+
+
+@functools.partial(xla_options.jit, static_argnames=("method", "substeps"))
+def _simulate(model: Model, world: World, state: State, targets, dt, method: str = "maba",
+              substeps: int = 1, target_velocities=None):
+    check_layout(model, "targets", targets, "nq", leading="T")
+    if target_velocities is not None:
+        check_layout(model, "target_velocities", target_velocities, "nv", leading="T")
+
     def control_step(s, control):
         target, target_velocity = control
         s, _ = jax.lax.scan(
@@ -140,7 +262,6 @@ def batched(fun, method: str, batch_last=None, in_axes=0):
     return vmap(fun, in_axes=in_axes)
 
 
-@functools.partial(xla_options.jit, static_argnames=("method", "substeps", "batch_last"))
 def simulate_batch(model: Model, world: World, states: State, targets, dt, method: str = "maba",
                    substeps: int = 1, target_velocities=None, batch_last=None):
     """`simulate` for a batch of characters: states with a leading batch axis; targets (T, nq)
@@ -150,9 +271,31 @@ def simulate_batch(model: Model, world: World, states: State, targets, dt, metho
     `batch_last` chooses how the batch is computed: with the batch as the innermost axis
     (`jaxsim.batch_last.vmap`), or as `jax.vmap` does, first. By default (None) the former for
     every method but those in `BATCH_FIRST_METHODS`. The results are the same either way.
+
+    Inputs and results are checked as `simulate` checks them, the errors naming the batch
+    members too; inside `jit`, `first_non_finite(trajectory)` gives one index per member.
     """
+    check_layout(model, "states.q", states.q, "nq", leading="batch")
+    check_layout(model, "states.qd", states.qd, "nv", leading="batch")
+    for name, values, layout in (("targets", targets, "nq"),
+                                 ("target_velocities", target_velocities, "nv")):
+        if values is not None:          # (T, n), or (batch, T, n): checked as one member's
+            shape = np.shape(values)
+            member = SimpleNamespace(shape=shape[1:] if len(shape) == 3 else shape)
+            check_layout(model, name, member, layout, leading="T")
+    _check_inputs(model, "states", states, targets, dt, target_velocities, ("in batch member",))
+    result = _simulate_batch(model, world, states, targets, dt, method, substeps,
+                             target_velocities, batch_last)
+    _check_trajectory(model, "simulate_batch", result[1], dt, substeps)
+    return result
+
+
+@functools.partial(xla_options.jit, static_argnames=("method", "substeps", "batch_last"))
+def _simulate_batch(model: Model, world: World, states: State, targets, dt,
+                    method: str = "maba", substeps: int = 1, target_velocities=None,
+                    batch_last=None):
     def run(state, target, target_velocity):
-        return simulate(model, world, state, target, dt, method, substeps, target_velocity)
+        return _simulate(model, world, state, target, dt, method, substeps, target_velocity)
 
     def axis(value):
         return None if value is None or jnp.ndim(value) == 2 else 0

@@ -321,3 +321,97 @@ def test_simulate_batch_equals_one_character_at_a_time():
         alone, _ = simulate(model, w, state, targets[k], DT, substeps=2)
         np.testing.assert_allclose(final.q[k], alone.q, rtol=1e-12, atol=1e-12)
     assert traj.q.shape == (2, 120, model.nq)
+
+
+STEPS = 6
+
+
+@pytest.fixture(scope="module")
+def chain():
+    """Two hinges in a row (nq = nv = 2) with nothing to touch: the cheapest rollout."""
+    base = LinkSpec("base", None, "fixed", mass=1.0, shape="sphere", shape_size=(0.05, 0, 0))
+    arm = dict(mass=1.0, shape="capsule", axis=(0, 0, 1), shape_pos=(0.0, -0.2, 0.0),
+               shape_size=(0.04, 0.15, 0.0), kp=50.0, kd=5.0)
+    model = build_model([base, LinkSpec("shoulder", "base", "revolute", **arm),
+                         LinkSpec("elbow", "shoulder", "revolute", joint_pos=(0, -0.4, 0), **arm)],
+                        dtype=jnp.float64)
+    w = world(ground=False)
+    q0 = jnp.array([0.3, -0.2])
+    return model, w, init_state(model, w, q0), jnp.tile(q0, (STEPS, 1))
+
+
+def stacked(*states):
+    return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *states)
+
+
+def test_init_state_refuses_a_non_finite_pose_or_velocity(chain):
+    model, w, _, targets = chain
+    with pytest.raises(SimulationError, match=r"init_state: .*\bq\[1\] \(joints elbow\)"):
+        init_state(model, w, jnp.array([0.0, jnp.nan]))
+    with pytest.raises(SimulationError, match=r"init_state: .*qd\[0\] \(joints shoulder\)"):
+        init_state(model, w, targets[0], np.array([np.inf, 0.0]))
+
+
+def test_simulate_names_non_finite_inputs_and_leaves_traced_ones_to_the_flag(chain):
+    model, w, state, targets = chain
+    bad_state = state.replace(qd=state.qd.at[1].set(jnp.nan))
+    with pytest.raises(SimulationError, match=r"qd\[1\] \(joints elbow\)"):
+        simulate(model, w, bad_state, targets, DT)
+    with pytest.raises(SimulationError,
+                       match=r"targets: .*\bq\[1\] \(joints elbow\) at control steps 2, 4$"):
+        simulate(model, w, state, targets.at[2, 1].set(jnp.nan).at[4, 1].set(jnp.inf), DT)
+    velocities = jnp.zeros((STEPS, 2)).at[0, 0].set(jnp.nan)
+    with pytest.raises(SimulationError, match=r"target_velocities: .*qd\[0\] \(joints "
+                                              r"shoulder\) at control step 0$"):
+        simulate(model, w, state, targets, DT, target_velocities=velocities)
+    with pytest.raises(SimulationError, match=r"target: .*\bq\[1\] \(joints elbow\)"):
+        step(model, w, state, targets[0].at[1].set(jnp.nan), DT)
+    # Inside jit nothing is concrete: no check, and the flag tells.
+    traced = jax.jit(lambda s: simulation.first_non_finite(simulate(model, w, s, targets, DT)[1]))
+    assert int(traced(bad_state)) == 0 and int(traced(state)) == -1
+
+
+def test_simulate_batch_names_the_members_with_non_finite_inputs(chain):
+    model, w, state, targets = chain
+    states = stacked(state, state.replace(q=state.q.at[0].set(jnp.nan)), state)
+    with pytest.raises(SimulationError,
+                       match=r"states: .*\bq\[0\] \(joints shoulder\) in batch member 1$"):
+        simulation.simulate_batch(model, w, states, targets, DT)
+    per_member = jnp.stack([targets, targets, targets.at[3, 1].set(jnp.nan)])
+    with pytest.raises(SimulationError, match=r"targets: .*\bq\[1\] \(joints elbow\) in batch "
+                                              r"member 2 at control step 3$"):
+        simulation.simulate_batch(model, w, stacked(state, state, state), per_member, DT)
+
+
+@pytest.mark.parametrize("dt", [-1.0, 0.0, float("nan"), float("inf"), "fast"])
+def test_every_entry_point_refuses_a_time_step_that_is_not_a_positive_number(chain, dt):
+    model, w, state, targets = chain
+    calls = (lambda: step(model, w, state, targets[0], dt),
+             lambda: simulate(model, w, state, targets, dt),
+             lambda: simulation.simulate_batch(model, w, stacked(state, state), targets, dt))
+    for call in calls:
+        with pytest.raises(SimulationError, match=f"dt must be a finite number > 0.*got '?{dt}"):
+            call()
+
+
+def test_a_rollout_that_turns_non_finite_says_when_and_where(chain):
+    model, w, state, targets = chain
+    # Finite inputs, but the SPD torque towards a target of 1e308 overflows at control step 3,
+    # which ends at t = 4 · 2 · DT.
+    blown = targets.at[3, 1].set(1e308)
+    with pytest.raises(SimulationError, match=r"non-finite at control step 3 \(t = 0\.0133333 s\)"
+                                              r".*\(joints [a-z, ]*elbow"):
+        simulate(model, w, state, blown, DT, substeps=2)
+    per_member = jnp.stack([targets, targets.at[5, 0].set(1e308), blown])
+    with pytest.raises(SimulationError, match=r"non-finite at control step 3 .* in batch member 2 "
+                                              r".*in all, batch members 1, 2 turn non-finite"):
+        simulation.simulate_batch(model, w, stacked(state, state, state), per_member, DT,
+                                  substeps=2)
+    # Inside jit the flag says the same.
+    flag = jax.jit(lambda t: simulation.first_non_finite(
+        simulate(model, w, state, t, DT, substeps=2)[1]))
+    assert int(flag(blown)) == 3 and int(flag(targets)) == -1
+    q = np.zeros((3, STEPS, 2))
+    q[1, 5:, 0], q[2, 3:, 1] = np.nan, np.inf
+    trajectory = init_state(model, w, targets[0]).replace(q=q, qd=np.zeros((3, STEPS, 2)))
+    np.testing.assert_array_equal(jax.jit(simulation.first_non_finite)(trajectory), [-1, 5, 3])
