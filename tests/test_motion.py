@@ -152,3 +152,35 @@ def test_spd_tracking_follows_the_walk_and_dense_equals_maba(humanoid, walk):
     _, lagging = simulate(model, world, state, poses, dt)
     lag = tracking.end_effector_error(model, walk, lagging.q, dt, "right_ankle")
     assert float(lag.mean()) > 3 * float(error.mean())
+
+
+TINY_BVH = """HIERARCHY
+ROOT hips
+{
+  OFFSET 0 1 0
+  CHANNELS 3 Xposition Yposition Zposition
+  End Site
+  {
+    OFFSET 0 2 0
+  }
+}
+MOTION
+Frames: 1
+Frame Time: 0.1
+0 0 0
+"""
+
+
+@pytest.mark.parametrize("value", [-1.0, 0.0, float("nan"), float("inf"), "2"])
+def test_loader_scales_and_rates_must_be_positive_numbers(tmp_path, data_dir, value):
+    path = tmp_path / "tiny.bvh"
+    path.write_text(TINY_BVH)
+    np.testing.assert_allclose(motion.load_bvh(path, length_scale=0.5).skeleton.rest_positions,
+                               [[0.0, 0.5, 0.0]])
+    with pytest.raises(motion.MotionFileError,
+                       match=f"tiny.bvh: length_scale must be a finite number > 0.*got '?{value}"):
+        motion.load_bvh(path, length_scale=value)
+    cmu = data_dir / "cmu" / "02"
+    with pytest.raises(motion.MotionFileError,
+                       match=f"02_01.amc: frame_rate must be a finite number > 0.*got '?{value}"):
+        motion.load_amc(cmu / "02_01.amc", motion.load_asf(cmu / "02.asf"), frame_rate=value)

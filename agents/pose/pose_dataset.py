@@ -110,21 +110,47 @@ def save(dataset: PoseDataset, path):
             np.savez_compressed(f, **{k: getattr(dataset, k) for k in _ARRAYS})
 
 
-def load(path, model: Model | None = None) -> PoseDataset:
-    """Read a dataset written by `save`; with `model`, check that its layout fits the model."""
+def read_npz(path, names, error: type[Exception], what: str) -> dict:
+    """The arrays `names` of the .npz archive `path`. A file that is not one numpy writes
+    without pickles (text, an .npy array, a damaged archive, object arrays) or that lacks one of
+    the arrays raises `error` with "path: `what` (why)"; pickles are never loaded."""
     path = os.fspath(path)
     try:
-        with np.load(path) as data:
-            arrays = {k: data[k] for k in data.files}
-    except FileNotFoundError:
+        with open(path, "rb") as f:
+            magic = f.read(4)
+    except OSError as problem:
+        raise error(f"{path}: {what} ({problem.strerror or problem})") from None
+    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):      # a zip archive, as np.savez writes
+        raise error(f"{path}: {what} (not an .npz archive)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in names if k not in data.files]
+            if missing:
+                raise error(f"{path}: {what} (it lacks {', '.join(missing)})")
+            return {k: data[k] for k in names}
+    except error:
+        raise
+    except ValueError:          # numpy refuses object arrays, which only pickles can hold
+        raise error(f"{path}: {what} (it holds Python objects, not arrays of numbers)") from None
+    except Exception as problem:        # zipfile, zlib and numpy's own for damaged bytes
+        raise error(f"{path}: {what} (a damaged .npz archive: {problem})") from None
+
+
+def load(path, model: Model | None = None) -> PoseDataset:
+    """Read a dataset written by `save`; with `model`, check that its layout fits the model. A
+    missing file or one that is not such a dataset is a `DatasetError` naming it."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
         raise DatasetError(f"{path}: no such dataset file; build one with `takeoff pvae "
-                           "dataset`") from None
-    except (OSError, ValueError) as error:
-        raise DatasetError(f"{path}: not a readable .npz dataset ({error})") from None
-    missing = [k for k in _ARRAYS if k not in arrays]
-    if missing:
-        raise DatasetError(f"{path}: not a pose dataset, missing {', '.join(missing)}")
-    dataset = PoseDataset(**{k: arrays[k] for k in _ARRAYS})
+                           "dataset`")
+    what = "not a pose dataset written by `takeoff pvae dataset`"
+    arrays = read_npz(path, _ARRAYS, DatasetError, what)
+    shapes = {k: a.shape for k, a in arrays.items()}
+    if ([len(shapes[k]) for k in _ARRAYS] != [2, 2, 2, 1, 1]
+            or len({shapes[k][0] for k in _ARRAYS[:4]}) != 1):
+        raise DatasetError(f"{path}: {what} (arrays of shapes "
+                           f"{', '.join(f'{k} {s}' for k, s in shapes.items())})")
+    dataset = PoseDataset(**arrays)
     if model is not None:
         layout = pose_features.PoseLayout.of(model)
         if (dataset.features.shape[1], dataset.targets.shape[1], dataset.poses.shape[1]) != (

@@ -21,6 +21,7 @@ import numpy as np
 from jaxsim import rotations
 from jaxsim.builder import LinkSpec, build_model
 from jaxsim.characters.common import half_sizes
+from jaxsim.files import read_text
 from jaxsim.model import ModelError
 
 _JOINT_TYPES = {"none": "free", "spherical": "spherical", "revolute": "revolute",
@@ -30,8 +31,7 @@ _LIMIT_SLOTS = {"free": 0, "spherical": 3, "revolute": 1, "fixed": 0}
 
 def _read_json(path):
     try:
-        with open(path) as f:
-            return json.load(f)
+        return json.loads(read_text(path, ModelError))
     except json.JSONDecodeError as e:
         raise ModelError(f"{path}: not valid JSON at line {e.lineno}, column {e.colno}: {e.msg}")
 

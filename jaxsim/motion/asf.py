@@ -27,7 +27,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxsim.motion.textfile import fail, floats, read_lines
+from jaxsim.files import read_text
+from jaxsim.motion.deepmimic import MotionFileError
+from jaxsim.motion.textfile import fail, floats, positive, read_lines
 from jaxsim.motion.skeleton import Skeleton, SkeletonClip, euler_to_matrix
 
 _METRES_PER_INCH = 0.0254
@@ -164,6 +166,8 @@ def _bone(path, block, degrees):
         raise fail(path, number, "a bone name is one word")
     direction = np.asarray(floats(path, *block["direction"], 3))
     (length,) = floats(path, *block["length"], 1)
+    if length < 0:
+        raise fail(path, block["length"][0], f"bone {name[0]!r} has a negative length {length}")
     number, axis = block["axis"]
     angles = floats(path, number, axis[:-1], 3)
     frame = _rest_frame(path, number, angles, axis[-1], degrees)
@@ -241,28 +245,27 @@ def _amc_lines(path, names):
     Each frame is a line with its number (one more than the last) followed by lines
     `bone v1 v2 …`."""
     frames, entries, degrees = [], {name: ([], []) for name in names}, None
-    with open(path) as f:
-        for number, line in enumerate(f, 1):
-            parts = line.split(None, 1)
-            if not parts:
-                continue
-            word = parts[0]
-            bone = entries.get(word)
-            if bone is not None and frames:
-                bone[0].append(parts[1] if len(parts) == 2 else "")
-                bone[1].append(number)
-            elif word.startswith("#"):
-                continue
-            elif word.startswith(":"):
-                degrees = {":DEGREES": True, ":RADIANS": False}.get(word.upper(), degrees)
-            elif len(parts) == 1 and word.isdigit():
-                if frames and int(word) != frames[-1][1] + 1:
-                    raise fail(path, number, f"frame {word} follows frame {frames[-1][1]}")
-                frames.append((number, int(word)))
-            elif not frames:
-                raise fail(path, number, f"{word!r} before the first frame number")
-            else:
-                raise fail(path, number, f"bone {word!r} is not in the skeleton")
+    for number, line in enumerate(read_text(path, MotionFileError).splitlines(), 1):
+        parts = line.split(None, 1)
+        if not parts:
+            continue
+        word = parts[0]
+        bone = entries.get(word)
+        if bone is not None and frames:
+            bone[0].append(parts[1] if len(parts) == 2 else "")
+            bone[1].append(number)
+        elif word.startswith("#"):
+            continue
+        elif word.startswith(":"):
+            degrees = {":DEGREES": True, ":RADIANS": False}.get(word.upper(), degrees)
+        elif len(parts) == 1 and word.isdigit():
+            if frames and int(word) != frames[-1][1] + 1:
+                raise fail(path, number, f"frame {word} follows frame {frames[-1][1]}")
+            frames.append((number, int(word)))
+        elif not frames:
+            raise fail(path, number, f"{word!r} before the first frame number")
+        else:
+            raise fail(path, number, f"bone {word!r} is not in the skeleton")
     return frames, entries, degrees
 
 
@@ -320,9 +323,7 @@ def load_amc(path, skeleton: AsfSkeleton, frame_rate: float = 120.0) -> Skeleton
     if not isinstance(skeleton, AsfSkeleton):
         raise TypeError("load_amc needs the skeleton that load_asf returns (it knows the dofs)")
     path = os.fspath(path)
-    if not (np.isfinite(frame_rate) and frame_rate > 0):
-        raise ValueError(f"{path}: frame_rate must be a positive number of frames per second, "
-                         f"got {frame_rate!r}")
+    frame_rate = positive(path, "frame_rate", frame_rate, "frames per second")
     values, degrees = _amc_values(path, skeleton)
     n_frames = len(values[0])
     root_positions = np.tile(skeleton.rest_positions[0], (n_frames, 1))

@@ -24,7 +24,7 @@ import os
 import numpy as np
 
 from jaxsim.atomic import write_text_atomic
-from jaxsim.motion.textfile import fail, floats, read_lines
+from jaxsim.motion.textfile import fail, floats, positive, read_lines
 from jaxsim.motion.skeleton import Skeleton, SkeletonClip, euler_to_matrix, world_deltas
 
 _POSITIONS = ("Xposition", "Yposition", "Zposition")
@@ -174,8 +174,9 @@ def _rest_pose(joints, length_scale):
 
 def load_bvh(path, length_scale: float = 1.0) -> SkeletonClip:
     """Read a BVH file as a clip of its joints (see the module docstring for the conventions);
-    `length_scale` converts its lengths to metres."""
+    `length_scale` (a finite number > 0) converts its lengths to metres."""
     path = os.fspath(path)
+    length_scale = positive(path, "length_scale", length_scale, "metres per BVH length unit")
     lines = read_lines(path)
     motion_at = next((i for i, (_, tokens) in enumerate(lines) if tokens[:1] == ["MOTION"]),
                      None)

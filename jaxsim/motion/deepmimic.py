@@ -7,6 +7,7 @@ humanoid, 83 for the dog). See the data README.
 import json
 import os
 
+from jaxsim.files import read_text
 from jaxsim.model import Model
 from jaxsim.motion.clip import Clip, make_clip
 
@@ -21,8 +22,7 @@ def load_motion(path, model: Model) -> Clip:
     """Read a DeepMimic motion file as a `Clip` of `model` (the pose length must match)."""
     path = os.fspath(path)
     try:
-        with open(path) as f:
-            data = json.load(f)
+        data = json.loads(read_text(path, MotionFileError))
     except json.JSONDecodeError as e:
         raise MotionFileError(f"{path}: not valid JSON at line {e.lineno}, column {e.colno}: "
                               f"{e.msg}")

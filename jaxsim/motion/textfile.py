@@ -2,6 +2,7 @@
 
 import math
 
+from jaxsim.files import read_text
 from jaxsim.motion.deepmimic import MotionFileError
 
 
@@ -11,8 +12,8 @@ def fail(path, line, reason) -> MotionFileError:
 
 def read_lines(path):
     """[(line number, tokens)] for every line of a text file (any line ends)."""
-    with open(path) as f:
-        return [(number, line.split()) for number, line in enumerate(f, 1)]
+    return [(number, line.split())
+            for number, line in enumerate(read_text(path, MotionFileError).splitlines(), 1)]
 
 
 def floats(path, line, tokens, count=None):
@@ -28,3 +29,16 @@ def floats(path, line, tokens, count=None):
     if bad:
         raise fail(path, line, f"not a finite number: {bad[0]!r}")
     return values
+
+
+def positive(path, name, value, meaning):
+    """`value` as a float when it is a finite number > 0; otherwise a `MotionFileError` naming
+    the file, the parameter `name` and what it gives (`meaning`, such as "frames per second")."""
+    try:
+        number = float(value) if not isinstance(value, str) else math.nan
+    except (TypeError, ValueError):
+        number = math.nan
+    if not (math.isfinite(number) and number > 0):
+        raise MotionFileError(f"{path}: {name} must be a finite number > 0 ({meaning}), "
+                              f"got {value!r}")
+    return number
