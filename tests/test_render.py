@@ -1,10 +1,12 @@
 """Rendering a simulation to pictures (needs matplotlib, the `render` extra)."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsim import characters, rest_pose, render
+from agents.tasks.reach import LINK_LENGTH, ReachEnv, arm
+from jaxsim import characters, kinematics, rest_pose, render
 from jaxsim.world import Box, make_world
 
 pytest.importorskip("matplotlib", reason="the render extra is part of the test extra")
@@ -67,3 +69,89 @@ def test_views_show_one_pose_from_each_camera(tmp_path, poses):
     body_blue = np.all(np.abs(image - np.array([0x4c, 0x72, 0xb0]) / 255) < 0.02, axis=-1)
     left, right = np.array_split(body_blue, 2, axis=1)
     assert left.mean() > 0.003 and right.mean() > 0.003
+
+
+GROUND_FILL, GROUND_LINE, MARKER = "#e8e4da", "#8a8272", "#c44e52"
+
+
+def _has_colour(image, colour, tolerance=0.02):
+    rgb = np.array([int(colour[i:i + 2], 16) for i in (1, 3, 5)]) / 255
+    return np.all(np.abs(image[..., :3] - rgb) < tolerance, axis=-1)
+
+
+def _arm_points(model, q):
+    """Base, elbow and tip of the two-link arm in pose q, in world coordinates."""
+    _, pos = kinematics.forward_kinematics(model, q)
+    tip = kinematics.point_positions(model, q, np.array([2]),
+                                     jnp.array([[LINK_LENGTH, 0.0, 0.0]], q.dtype))[0]
+    return np.vstack([np.asarray(pos), np.asarray(tip)[None]])
+
+
+def test_a_world_without_ground_draws_no_ground_and_frames_the_whole_arm(tmp_path,
+                                                                          monkeypatch):
+    """The reach arm hangs below the origin in a world with no ground: no ground is drawn and
+    every panel's limits hold the whole arm, hanging, bent or raised."""
+    from matplotlib.image import imread
+    model, world = arm(), make_world(ground=False)
+    qs = jnp.array([[-np.pi / 2, 0.0], [-np.pi / 2, 1.2], [0.4, -2.5]], model.mass.dtype)
+    limits, save = [], render.save_figure
+
+    def keep_limits(fig, *args, **kwargs):
+        limits.extend((ax.get_xlim(), ax.get_ylim()) for ax in fig.axes)
+        save(fig, *args, **kwargs)
+
+    monkeypatch.setattr(render, "save_figure", keep_limits)
+    render.filmstrip(model, qs, tmp_path / "arm.png", world=world, n_panels=3)
+    assert len(limits) == 3
+    radius = 0.05                                       # the base sphere; links are thinner
+    for q, (xlim, ylim) in zip(qs, limits):
+        points = _arm_points(model, q)
+        assert xlim[0] < points[:, 0].min() - radius and points[:, 0].max() + radius < xlim[1]
+        assert ylim[0] < points[:, 1].min() - radius and points[:, 1].max() + radius < ylim[1]
+    image = imread(tmp_path / "arm.png")
+    assert not _has_colour(image, GROUND_FILL).any() and not _has_colour(image, GROUND_LINE).any()
+    body_blue = _has_colour(image, "#4c72b0")
+    assert all(panel.mean() > 0.003 for panel in np.array_split(body_blue, 3, axis=1))
+
+
+def test_markers_are_drawn_fixed_or_per_frame(tmp_path):
+    """A task's points (the reach goal) are drawn in every panel and frame, whether one set for
+    the whole clip or one per frame; without markers nothing of their colour is drawn."""
+    from matplotlib.image import imread
+    model, world = arm(), make_world(ground=False)
+    qs = jnp.array([[-np.pi / 2, 0.0], [0.0, 0.5]], model.mass.dtype)
+    goal = np.array([[0.3, -0.6, 0.0]])
+    render.filmstrip(model, qs, tmp_path / "plain.png", world=world)
+    render.filmstrip(model, qs, tmp_path / "fixed.png", world=world, markers=goal)
+    render.filmstrip(model, qs, tmp_path / "moving.png", world=world,
+                     markers=np.stack([goal, goal + 0.2]))
+    paths = render.frames(model, qs, tmp_path / "frames", world=world, markers=goal)
+    assert not _has_colour(imread(tmp_path / "plain.png"), MARKER).any()
+    for name in ("fixed.png", "moving.png"):
+        marked = _has_colour(imread(tmp_path / name), MARKER)
+        assert all(panel.any() for panel in np.array_split(marked, 2, axis=1))
+    assert all(_has_colour(imread(path), MARKER).any() for path in paths)
+
+
+def test_reach_offers_its_goal_as_a_marker():
+    env = ReachEnv()
+    state = env.reset(env.default_params(), jax.random.PRNGKey(3))
+    np.testing.assert_array_equal(np.asarray(env.markers(state.task)),
+                                  np.asarray(state.task)[None])
+
+
+def test_the_gif_holds_one_frame_per_pose_even_when_poses_repeat(tmp_path):
+    """A still arm for 12 control steps at 30 Hz: 12 frames (Pillow would merge identical
+    consecutive frames) lasting 0.4 s in all (GIF delays are whole centiseconds)."""
+    from PIL import Image
+    model = arm()
+    qs = jnp.zeros((12, 2), model.mass.dtype)
+    render.animation(model, qs, tmp_path / "still.gif", world=make_world(ground=False),
+                     fps=30.0, markers=np.array([[0.5, 0.5, 0.0]]))
+    with Image.open(tmp_path / "still.gif") as gif:
+        assert gif.n_frames == 12
+        durations = []
+        for k in range(gif.n_frames):
+            gif.seek(k)
+            durations.append(gif.info["duration"])
+    assert sum(durations) == 400 and max(durations) - min(durations) <= 10

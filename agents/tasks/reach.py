@@ -87,6 +87,11 @@ class ReachEnv:
         return start_of_episode(physics, self._observe(physics, goal), key, goal,
                                 {"distance": jnp.linalg.norm(self._tip(q) - goal)})
 
+    def markers(self, task):
+        """The world points to draw over an episode whose task state is `task` (see
+        `jaxsim.render.animation`): the goal, (1, 3)."""
+        return jnp.reshape(task, (1, 3))
+
     def step(self, params, state, action):
         target = self.settings.action_scale * action
         physics, _ = common.simulate_control_step(
