@@ -18,6 +18,11 @@ import tomllib
 import typing
 from pathlib import Path
 
+from jaxsim.files import read_text
+
+
+MAX_INT = 2**31 - 1         # a config's whole numbers become 32-bit sizes, counts and seeds
+
 
 class ConfigError(ValueError):
     """A config file or override that cannot be used; the message names the file and key."""
@@ -50,8 +55,8 @@ def read_stored(path) -> dict:
     when it cannot be read as a JSON object (a torn write, another kind of file)."""
     path = Path(path)
     try:
-        stored = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        stored = json.loads(read_text(path, ConfigError))
+    except json.JSONDecodeError as error:
         raise ConfigError(f"{path}: not a readable run config ({error})") from None
     if not isinstance(stored, dict):
         raise ConfigError(f"{path}: not a readable run config (not a JSON object)")
@@ -64,15 +69,22 @@ def load(path, schema, overrides=()):
 
 
 def read(path, overrides=()) -> dict:
-    """The TOML file at `path` as nested dicts, with `overrides` ("a.b=value") applied."""
+    """The TOML file at `path` as nested dicts, with `overrides` ("a.b=value") applied; a file
+    that holds no settings at all is refused (it would silently run on every default)."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a directory, not a config file (give a .toml file)")
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file") from None
-    except tomllib.TOMLDecodeError as error:
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot be read ({error.strerror or error})") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise ConfigError(f"{path}: not valid TOML: {error}") from None
+    if not data:
+        raise ConfigError(f"{path}: the file holds no settings")
     for override in overrides:
         apply_override(data, override, path)
     return data
@@ -126,10 +138,16 @@ def _convert(kind, value, source, key):
         item = typing.get_args(kind)[0]
         return tuple(_convert(item, v, source, f"{key}[{i}]") for i, v in enumerate(value))
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
+        value = float(value)
     if kind is int and isinstance(value, bool) or not isinstance(value, kind):
         raise _type_error(source, key, f"{'a' if kind is not int else 'an'} {kind.__name__}",
                           value)
+    if kind is float and not math.isfinite(value):
+        raise ConfigError(f"{source}: key {key!r} must be a finite number; got {value}")
+    if kind is int and abs(value) > MAX_INT:
+        raise ConfigError(f"{source}: key {key!r} is {value}, beyond the ±{MAX_INT:,} a whole "
+                          "number in a config may be (it becomes a size, a step count or a seed "
+                          "in compiled code, which counts in 32 bits)")
     return value
 
 

@@ -12,13 +12,16 @@ so exploration moves elsewhere, and its believed feature joins the features the 
 acquisition must differ from. With `batch = 1` this is Algorithm 1. A round's evaluations may run at
 once (`workers`).
 
-Persistence: every event is appended to a JSONL log and flushed to disk at once — a header with the
+Persistence: every event is appended to a JSONL log and synced to disk at once — a header with the
 settings, each round's planned points before they are evaluated, and each evaluation the moment it
 returns. `search` on an existing log resumes: finished evaluations are read back, not repeated; a
 round that was planned but not finished evaluates only its missing points; the next decisions are
-computed from the same history. A half-written last line (a crash during a write) is dropped, and
-a complete last line missing only its newline gets one, before anything more is appended; a log cut
-off before its header was complete holds nothing and starts afresh.
+computed from the same history. The log is read by the policy of `jaxsim.runlog`: a half-written
+last line (a crash during a write) is set aside in `<log>.torn` with a warning, a bad line or an
+evaluation whose x or feature is not finite numbers of the right size (or x lies outside the box)
+is a `SearchError` naming the file and record, and a log cut off before its header was complete
+holds nothing and starts afresh. A search that fails before its first evaluation is logged
+removes the log it created.
 
 Every random choice comes from the seed and the index of the pick, so the same settings give the
 same search on the same machine.
@@ -28,8 +31,8 @@ import contextlib
 import dataclasses
 import json
 import math
-import os
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from functools import partial
@@ -42,6 +45,7 @@ import numpy as np
 
 from bds import acquisition, gp
 from bds.optimize import direct, maximize_lbfgs
+from jaxsim import runlog
 from jaxsim.atomic import write_text_atomic
 
 STRATEGIES = ("bds", "random")
@@ -245,46 +249,44 @@ def _as_json(record):
     return json.loads(json.dumps(record))
 
 
-def _line(record):
-    return json.dumps(record) + "\n"
+_START = runlog.format_record({"event": "start"})[:-2]     # how every header begins
 
 
-_START = '{"event": "start"'                # how _line begins every header
-
-
-def _complete_lines(text):
-    """The lines of a log's text that hold whole records: a last line cut off by a crash (it
-    does not parse) is left out; one that is whole but lacks its newline is kept."""
-    lines = text.split("\n")
-    tail = lines.pop()                        # "" when the text ends with a newline
-    if tail:
-        try:
-            json.loads(tail)
-        except json.JSONDecodeError:
-            pass
-        else:
-            lines.append(tail)
-    return lines
-
-
-def _parse(path, lines):
-    records = []
-    for number, line in enumerate(lines, 1):
-        try:
-            records.append(json.loads(line))
-        except json.JSONDecodeError as error:
-            raise SearchError(f"{path}, line {number}: not valid JSON ({error.msg})") from None
-    return records
+def _read_log(path) -> runlog.Log:
+    """The log at `path` read by the policy of `jaxsim.runlog`, its errors as SearchErrors."""
+    try:
+        return runlog.read(path)
+    except runlog.LogError as error:
+        raise SearchError(str(error)) from None
 
 
 def logged_evaluations(path):
     """The evaluation records in the search log at `path`, in the order they were written
     (none when there is no such file)."""
-    path = Path(path)
-    if not path.exists():
-        return []
-    records = _parse(path, _complete_lines(path.read_text(encoding="utf-8")))
-    return [record for record in records if record.get("event") == "evaluation"]
+    return [r for r in _read_log(path).records if r.get("event") == "evaluation"]
+
+
+def _numbers(value, size=None):
+    """Whether `value` is a list of (`size`, if given) finite numbers."""
+    return (isinstance(value, list) and (size is None or len(value) == size) and len(value) > 0
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                    for v in value))
+
+
+def _check_evaluation(record, lower, upper, feature_size):
+    """What is wrong with a logged evaluation ("" when nothing): its index, its x (inside the
+    search's box) and its feature (finite numbers, as many as the others')."""
+    if not isinstance(record.get("index"), int) or record["index"] < 0:
+        return f"index {record.get('index')!r} is not a whole number ≥ 0"
+    if not _numbers(record.get("x"), len(lower)):
+        return f"x {record.get('x')!r} is not {len(lower)} finite numbers"
+    x = np.asarray(record["x"])
+    if np.any(x < lower - 1e-9 * (upper - lower)) or np.any(x > upper + 1e-9 * (upper - lower)):
+        return f"x {record['x']} lies outside the search's box"
+    if not _numbers(record.get("feature"), feature_size):
+        return (f"feature {record.get('feature')!r} is not "
+                f"{feature_size or 'a list of'} finite numbers")
+    return ""
 
 
 class SearchLog:
@@ -295,19 +297,18 @@ class SearchLog:
         self.header = header
         self.plans = {}            # first_index -> (points, kinds)
         self.evaluations = {}      # index -> record
+        self.started = False       # whether the file holds the header
+        self.created = False       # whether this search wrote it
         if self.path is not None and self.path.exists():
             self._read()
-        else:
-            self._append({"event": "start", **header})
 
     def _read(self):
-        text = self.path.read_text(encoding="utf-8")
-        lines = _complete_lines(text)
-        if not lines and (_START.startswith(text) or text.startswith(_START)):
+        log = _read_log(self.path)
+        if not log.records and (_START.startswith(log.torn) or log.torn.startswith(_START)):
             # Empty, or a crash while the header was written: no evaluation to keep.
-            write_text_atomic(self.path, _line({"event": "start", **self.header}))
+            self._set_aside(log, [])
             return
-        records = _parse(self.path, lines)
+        records = log.records
         if not records or records[0].get("event") != "start":
             raise SearchError(f"{self.path}: not a search log (the first line must be the "
                               "search's 'start' record)")
@@ -319,26 +320,48 @@ class SearchLog:
                 raise SearchError(f"{self.path}: this log belongs to a different search: its "
                                   f"{key} is {stored.get(key)!r}, the settings give {value!r}; "
                                   "use another log file or the same settings")
+        lower, upper = np.asarray(self.header["lower"]), np.asarray(self.header["upper"])
+        feature_size = None
         for number, record in enumerate(records[1:], 2):
             if record.get("event") == "plan":
                 self.plans[record["first_index"]] = (record["points"], record["kinds"])
             elif record.get("event") == "evaluation":
+                problem = _check_evaluation(record, lower, upper, feature_size)
+                if problem:
+                    raise SearchError(f"{self.path}, record {number}: the evaluation's "
+                                      f"{problem}")
+                feature_size = len(record["feature"])
                 self.evaluations[record["index"]] = record
             else:
-                raise SearchError(f"{self.path}, line {number}: unknown event "
+                raise SearchError(f"{self.path}, record {number}: unknown event "
                                   f"{record.get('event')!r}")
-        whole = "".join(line + "\n" for line in lines)
-        if whole != text:                         # so the next record starts on a line of its own
-            write_text_atomic(self.path, whole)
+        self.started = True
+        self._set_aside(log, records)
+
+    def _set_aside(self, log, records):
+        """Rewrite a log that is not intact as `records`, its torn last line set aside."""
+        if log.intact:
+            return
+        note = runlog.repair(log, records)
+        if note:
+            warnings.warn(note, RuntimeWarning, stacklevel=4)
 
     def _append(self, record):
+        """Append `record` (after the header, when the file has none yet), synced to disk."""
         if self.path is None:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path, "a", encoding="utf-8") as f:
-            f.write(_line(record))
-            f.flush()
-            os.fsync(f.fileno())
+        if not self.started:
+            write_text_atomic(self.path, runlog.format_record({"event": "start", **self.header}))
+            self.started = self.created = True
+        runlog.append(self.path, record, sync=True)
+
+    def discard_if_empty(self):
+        """Remove the log this search created when it holds no evaluation (only its header and
+        plans), so a search that failed at once leaves no file behind."""
+        if self.path is not None and self.created and not self.evaluations:
+            self.path.unlink(missing_ok=True)
+            self.started = self.created = False
 
     def add_plan(self, first_index, points, kinds):
         self.plans[first_index] = (points, kinds)
@@ -411,6 +434,18 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
         if progress is not None:
             progress(record)
 
+    try:
+        _run_rounds(settings, record_log, history, evaluate, finish, dim, workers)
+    except BaseException:
+        record_log.discard_if_empty()
+        raise
+    done = [record_log.evaluations[i] for i in range(settings.budget)]
+    return SearchResult(np.array([r["x"] for r in done]), np.array([r["feature"] for r in done]),
+                        [r["kind"] for r in done])
+
+
+def _run_rounds(settings, record_log, history, evaluate, finish, dim, workers):
+    """Plan (or read back) each round's points and evaluate those the log does not hold."""
     first = 0
     with ThreadPoolExecutor(max_workers=workers) as pool:
         while first < settings.budget:
@@ -440,6 +475,3 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
                             finish(job.result())
                 raise
             first += len(points)
-    done = [record_log.evaluations[i] for i in range(settings.budget)]
-    return SearchResult(np.array([r["x"] for r in done]), np.array([r["feature"] for r in done]),
-                        [r["kind"] for r in done])

@@ -13,11 +13,11 @@
         one draw per control step at 10 Hz) clear the curriculum's first difficulty from each
         row of Table 3.3/3.4, as printed and with ω_z negated: whether a sparse-reward
         training from that take-off state has any first success to learn from
-    python benchmarks/jump.py report RUN_DIR --name highjump_fosbury
-        the figures of a training run into docs/: its curriculum curve (`takeoff plot`), the
-        deterministic jump as a filmstrip with bar and mat, the peak pose from two views
-        (along the bar and facing it), and its summary with the crossing feature into
-        benchmarks/results/NAME.json
+    python benchmarks/jump.py report RUN_DIR --name highjump_fosbury [--out docs]
+        the figures of a training run into --out (default docs/): its curriculum curve
+        (`takeoff plot`), the deterministic jump as a filmstrip with bar and mat, the peak pose
+        from two views (along the bar and facing it), and its summary with the crossing
+        feature as NAME.json
 
 Learning runs are `takeoff train configs/highjump.toml` (docs/benchmarks.md gives the commands
 and the figures). Needs the reference data (TAKEOFF_DATA, default ../shared/data) and a trained
@@ -178,7 +178,9 @@ def report(args):
     summary, env, poses = train_commands.evaluate(run, episodes=args.episodes, data_dir=data,
                                                   echo=lambda _: None)
     train_commands.plot(run, quiet=True)
-    shutil.copyfile(run / train_commands.CURVE, DOCS / f"{args.name}_curve.png")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(run / train_commands.CURVE, out / f"{args.name}_curve.png")
     z = summary["episode/difficulty"]
     task = {"takeoff": jnp.asarray(env.settings.x, env.q0.dtype),
             "difficulty": jnp.asarray(z, env.q0.dtype)}
@@ -188,13 +190,13 @@ def report(args):
     times = np.arange(1, len(poses) + 1) * env.control_dt
     outcome = "cleared" if summary["episode/success"] else "failed"
     thing = "bar" if env.kind == "highjump" else "obstacle"
-    render.filmstrip(env.model, poses, DOCS / f"{args.name}_filmstrip.png", world=world,
+    render.filmstrip(env.model, poses, out / f"{args.name}_filmstrip.png", world=world,
                      n_panels=min(10, len(poses)), times=times, azimuth=_azimuth(along),
                      title=f"{args.name}: the deterministic jump at z = {z:.2f} m ({outcome}), "
                            f"seen along the {thing}")
     heights = [float(kinematics.center_of_mass(env.model, jnp.asarray(q))[1]) for q in poses]
     peak = int(np.argmax(heights))
-    render.views(env.model, poses[peak], DOCS / f"{args.name}_peak.png", world=world,
+    render.views(env.model, poses[peak], out / f"{args.name}_peak.png", world=world,
                  azimuths=(_azimuth(along), _azimuth(normal)),
                  labels=(f"along the {thing}", f"facing the {thing}"),
                  title=f"peak pose (t = {times[peak]:.2f} s, centre of mass {heights[peak]:.2f} m)")
@@ -202,7 +204,7 @@ def report(args):
     result = {"machine": machine_info(), "run": str(run), "iterations": records[-1]["iteration"],
               "samples": records[-1]["samples"], "minutes": records[-1]["seconds"] / 60,
               "evaluation": summary}
-    write_text_atomic(RESULTS / f"{args.name}.json", json.dumps(result, indent=2) + "\n")
+    write_text_atomic(out / f"{args.name}.json", json.dumps(result, indent=2) + "\n")
     print(json.dumps(result["evaluation"], indent=2))
 
 
@@ -230,6 +232,8 @@ def main():
     p = sub.add_parser("report")
     p.add_argument("run_dir")
     p.add_argument("--name", required=True)
+    p.add_argument("--out", default=str(DOCS), help="folder of the figures and the JSON "
+                                                     "(default docs/)")
     p.add_argument("--episodes", type=int, default=16)
     p.set_defaults(run=report)
     args = parser.parse_args()

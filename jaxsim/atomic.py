@@ -1,10 +1,41 @@
 """Writing files so that a reader never sees half of one: write a temporary file in the same
-folder, flush it to disk, then rename it over the target (an atomic step on POSIX and Windows)."""
+folder, flush it to disk, then rename it over the target (an atomic step on POSIX and Windows).
+And `check_writable`, asked before any long work, so that an output folder that cannot take the
+results fails at once with its name, not after minutes of work with a traceback."""
 
 import contextlib
 import os
+import shutil
 import tempfile
 from pathlib import Path
+
+
+class OutputError(ValueError):
+    """An output folder that cannot be written, or has too little room; the message names it."""
+
+
+def check_writable(directory, need_bytes: int = 0, what: str = "the output") -> Path:
+    """Make sure `directory` exists (creating it) and a file can be written in it, with at
+    least `need_bytes` free on its disk for `what`; an `OutputError` naming it otherwise.
+    Returns it as a Path."""
+    directory = Path(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=directory, prefix=".write-check.")
+        os.close(fd)
+        os.remove(probe)
+    except OSError as error:
+        raise OutputError(f"{directory}: cannot write {what} there "
+                          f"({error.strerror or error})") from None
+    free = shutil.disk_usage(directory).free
+    if free < need_bytes:
+        raise OutputError(f"{directory}: {what} needs {_megabytes(need_bytes)} on disk, and "
+                          f"only {_megabytes(free)} is free there")
+    return directory
+
+
+def _megabytes(count: int) -> str:
+    return f"{count / 1e6:,.1f} MB"
 
 
 def _read_umask() -> int:

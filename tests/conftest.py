@@ -11,7 +11,8 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 
-from jaxsim import characters, simulation  # noqa: E402  (after enabling float64)
+from agents import datadir  # noqa: E402  (after enabling float64)
+from jaxsim import characters, simulation  # noqa: E402
 from jaxsim.model import rest_pose  # noqa: E402
 from jaxsim.tracking import tracking_model  # noqa: E402
 from jaxsim.world import make_world  # noqa: E402
@@ -19,9 +20,9 @@ from jaxsim.world import make_world  # noqa: E402
 
 @pytest.fixture(scope="session")
 def data_dir() -> pathlib.Path:
-    """The reference data (TAKEOFF_DATA, default ../shared/data); a missing one is a failure."""
-    default = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
-    path = pathlib.Path(os.environ.get("TAKEOFF_DATA", default))
+    """The reference data, where the commands look for it (`agents.datadir`); a missing one is
+    a failure."""
+    path = pathlib.Path(os.environ.get("TAKEOFF_DATA") or datadir.CHECKOUT_DEFAULT)
     if not (path / "deepmimic" / "characters" / "humanoid3d.txt").exists():
         pytest.fail(f"reference data not found in {path}; set TAKEOFF_DATA to ../shared/data")
     return path

@@ -119,7 +119,9 @@ def test_resume_after_a_crash_evaluates_nothing_twice(tmp_path):
     with open(log, "a") as f:
         f.write('{"event": "evaluation", "ind')
     first_part = len(evaluated)
-    result = search(crashing, [0, 0], [2, 1], settings, log=log)
+    with pytest.warns(RuntimeWarning, match=r"its last line was cut off .*search\.jsonl\.torn"):
+        result = search(crashing, [0, 0], [2, 1], settings, log=log)
+    assert (tmp_path / "search.jsonl.torn").read_text() == '{"event": "evaluation", "ind\n'
     resumed = evaluated[first_part:]
     assert first_part == 5 and len(resumed) == 3
     points = np.array(evaluated)
@@ -285,7 +287,12 @@ def test_a_log_cut_off_in_its_header_starts_afresh(tmp_path, cut):
     log = tmp_path / "search.jsonl"
     log.write_text(cut)
     settings = SearchSettings(strategy="random", budget=2)
-    result = search(lambda x: x[0], [0], [1], settings, log=log)
+    if cut:                         # the cut-off text is set aside, and the user told so
+        with pytest.warns(RuntimeWarning, match="its last line was cut off"):
+            result = search(lambda x: x[0], [0], [1], settings, log=log)
+        assert (tmp_path / "search.jsonl.torn").read_text() == cut + "\n"
+    else:
+        result = search(lambda x: x[0], [0], [1], settings, log=log)
     logged = [json.loads(line) for line in log.read_text().splitlines()]
     assert logged[0]["event"] == "start" and logged[0]["lower"] == [0.0]
     assert [r["x"] for r in logged if r["event"] == "evaluation"] == result.x.tolist()
@@ -440,7 +447,7 @@ def test_takeoff_search_reports_a_damaged_log_and_lets_other_errors_through(
     log = out_dir / "evaluations.jsonl"
     lines = log.read_text().splitlines(keepends=True)
     log.write_text("".join(lines[:2] + ["{not json\n"] + lines[3:]))
-    with pytest.raises(SystemExit, match=f"{log}, line 3: not valid JSON"):
+    with pytest.raises(SystemExit, match=f"{log}, line 3: not a log record"):
         main(["search", str(config), "--out", str(out_dir)])
     # Anything else is a bug: it keeps its traceback instead of becoming a one-line message.
     from agents.commands import strategy_search
@@ -474,3 +481,47 @@ def test_progress_after_a_resume_counts_the_strategies_already_found(tmp_path, c
         assert int(distinct) == len(seen)
     # The first run found several strategies, so a resumed count that forgot them would differ.
     assert len({strategy for strategy, _, _ in progress(first)}) > 1
+
+
+def test_a_logged_evaluation_that_is_not_finite_numbers_in_the_box_is_refused(tmp_path):
+    log = tmp_path / "search.jsonl"
+    settings = SearchSettings(strategy="random", budget=3)
+    search(lambda x: [x[0], 1.0], [0], [1], settings, log=log)
+    text = log.read_text()
+    lines = text.splitlines(keepends=True)
+    record = json.loads(lines[-1])
+    for field, value, message in [("feature", "[NaN, 1.0]", "NaN is not a finite number"),
+                                  ("feature", "[0.5]", r"feature \[0\.5\] is not 2 finite"),
+                                  ("x", "[7.0]", r"x \[7\.0\] lies outside the search's box"),
+                                  ("x", "[]", r"x \[\] is not 1 finite numbers"),
+                                  ("index", "-1", "index -1 is not a whole number")]:
+        bad = json.dumps({**record, field: "@"}).replace('"@"', value)
+        log.write_text("".join(lines[:-1]) + bad + "\n")
+        with pytest.raises(SearchError, match=message):
+            search(lambda x: [x[0], 1.0], [0], [1], dataclasses.replace(settings, budget=4),
+                   log=log)
+
+
+def test_a_search_that_fails_before_its_first_evaluation_leaves_no_log(tmp_path):
+    log = tmp_path / "my_search.jsonl"
+
+    def broken(x):
+        return undefined_feature(x)     # noqa: F821 — the README's NameError
+    with pytest.raises(NameError):
+        search(broken, [0, 0], [1, 5], SearchSettings(budget=4), log=log)
+    assert not log.exists()
+    # A log that holds evaluations stays, whatever fails next.
+    search(lambda x: x[0], [0], [1], SearchSettings(strategy="random", budget=1), log=log)
+    with pytest.raises(NameError):
+        search(broken, [0], [1], SearchSettings(strategy="random", budget=2), log=log)
+    assert log.exists()
+
+
+def test_takeoff_search_refuses_a_directory_a_nan_setting_and_zero_workers(tmp_path, capsys):
+    config = write_config(tmp_path, RANDOM_SEARCH)
+    code, _, err = run_cli(["search", str(tmp_path)], capsys)
+    assert code != 0 and "is a directory, not a config file" in str(code) + err
+    with pytest.raises(SystemExit, match=r"'landscape\.noise' must be a finite number; got nan"):
+        main(["search", str(config), "--set", "landscape.noise=nan"])
+    code, _, err = run_cli(["search", str(config), "--workers", "0"], capsys)
+    assert code == 2 and "--workers: must be a whole number ≥ 1" in err

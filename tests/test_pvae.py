@@ -10,6 +10,7 @@ import pytest
 
 import flax.serialization
 
+from agents import datadir
 from agents.commands import cli, pvae_commands
 from agents.pose import pose_dataset, pose_features, pvae, pvae_report
 from agents.checkpoint import CheckpointError
@@ -253,7 +254,62 @@ def test_weights_that_do_not_fit_name_the_file_and_the_leaf(tmp_path, humanoid):
         pvae.load_decoder(tmp_path, humanoid)
 
 
-def test_cli_dataset_needs_a_data_directory(monkeypatch):
+def test_the_data_directory_is_the_one_named_else_the_checkout_default(
+        monkeypatch, tmp_path, data_dir):
     monkeypatch.delenv("TAKEOFF_DATA", raising=False)
-    with pytest.raises(SystemExit, match="TAKEOFF_DATA"):
-        cli.main(["pvae", "dataset"])
+    assert datadir.data_dir_from() == datadir.CHECKOUT_DEFAULT     # a checkout needs nothing
+    monkeypatch.setattr(datadir, "CHECKOUT_DEFAULT", tmp_path / "nowhere")
+    with pytest.raises(SystemExit, match=r"no data directory at .*nowhere \(the default beside "
+                                         r"the checkout\); name it with --data-dir or "
+                                         "TAKEOFF_DATA"):
+        cli.main(["pvae", "dataset", "--out", str(tmp_path / "poses.npz")])
+    monkeypatch.setenv("TAKEOFF_DATA", str(tmp_path / "elsewhere"))
+    with pytest.raises(SystemExit, match=r"elsewhere \(TAKEOFF_DATA\)"):
+        cli.main(["pvae", "dataset", "--out", str(tmp_path / "poses.npz")])
+    assert datadir.data_dir_from(str(data_dir)) == data_dir
+
+
+def test_files_that_are_not_pose_datasets_are_named_without_pickle_advice(tmp_path):
+    n = 3
+    arrays = dict(features=np.zeros((n, 4), np.float32), targets=np.zeros((n, 2), np.float32),
+                  poses=np.zeros((n, 5), np.float32), clip_index=np.zeros(n, np.int32),
+                  clip_names=np.array(["a"]))
+    good = tmp_path / "good.npz"
+    pose_dataset.save(pose_dataset.PoseDataset(**arrays), good)
+    assert len(pose_dataset.load(good)) == n
+    (tmp_path / "poses.txt").write_text("0.1 0.2 0.3\n")
+    (tmp_path / "empty.npz").write_bytes(b"")
+    (tmp_path / "folder.npz").mkdir()
+    np.save(tmp_path / "poses.npy", arrays["features"])
+    np.savez(tmp_path / "objects.npz", **{**arrays, "features": np.array([{}] * n)})
+    np.savez(tmp_path / "flat.npz", **{**arrays, "features": np.zeros(n)})
+    np.savez(tmp_path / "partial.npz", features=arrays["features"])
+    (tmp_path / "cut.npz").write_bytes(good.read_bytes()[:100])
+    damaged = bytearray(good.read_bytes())
+    damaged[len(damaged) // 3] ^= 0xFF
+    (tmp_path / "damaged.npz").write_bytes(bytes(damaged))
+    for name in ("poses.txt", "empty.npz", "folder.npz", "poses.npy", "objects.npz", "flat.npz",
+                 "partial.npz", "cut.npz", "damaged.npz"):
+        with pytest.raises(pose_dataset.DatasetError) as error:
+            pose_dataset.load(tmp_path / name)
+        message = str(error.value)
+        assert message.startswith(f"{tmp_path / name}: not a pose dataset written by `takeoff "
+                                  "pvae dataset`"), message
+        assert "pickle" not in message, message
+
+
+def test_a_normalisation_record_that_is_not_an_npz_archive_is_named(tmp_path, humanoid):
+    layout = pose_features.PoseLayout.of(humanoid)
+    config = pvae.PVAEConfig(model=pvae.ModelSettings(hidden=(8,)))
+    params = pvae.network_of(config, layout.target_size).init(
+        jax.random.PRNGKey(0), jnp.zeros((1, layout.feature_size)), jax.random.PRNGKey(1))["params"]
+    norm = pvae.Normalisation(jnp.zeros(layout.feature_size), jnp.ones(layout.feature_size),
+                              jnp.zeros(layout.target_size), jnp.ones(layout.target_size))
+    pvae.save(pvae.TrainResult(params, norm, [], 0.0), config, tmp_path)
+    record = tmp_path / pvae.NORMALISATION_FILE
+    for contents in (b"feature_mean 0 0 0\n", record.read_bytes()[:80]):
+        record.write_bytes(contents)
+        with pytest.raises(CheckpointError, match=f"^{record}: not the normalisation record of "
+                                                  "a P-VAE run") as error:
+            pvae.load_decoder(tmp_path, humanoid)
+        assert "pickle" not in str(error.value)

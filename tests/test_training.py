@@ -17,6 +17,8 @@ from agents.rl.env import end_of_step, start_of_episode
 from agents.rl.ppo import PPOSettings
 from agents.rl.rollout import make_rollout, start_runner
 from agents.tasks.reach import ReachEnv, ReachSettings
+from jaxsim import atomic
+from jaxsim.atomic import OutputError
 
 CONFIG = "configs/reach.toml"
 
@@ -185,9 +187,10 @@ def test_eval_reports_and_renders(tmp_path, capsys):
     ("ppo.clip=true", "'ppo.clip' must be a float"),
     ("reach.sim_hz=100.0", "whole multiple"),
     ("run.batch=3", "unknown key 'run.batch'"),
-    ("ppo.policy_lr=inf", "policy_lr must be a finite number > 0; got inf"),
-    ("ppo.sigma_horizon=inf", "sigma_horizon must be a finite number > 0"),
-    ("ppo.max_grad_norm=inf", "max_grad_norm must be a finite number ≥ 0; got inf"),
+    ("ppo.policy_lr=inf", "'ppo.policy_lr' must be a finite number; got inf"),
+    ("ppo.policy_lr=-1.0", "policy_lr must be a finite number > 0; got -1.0"),
+    ("ppo.sigma_horizon=inf", "'ppo.sigma_horizon' must be a finite number"),
+    ("ppo.max_grad_norm=-0.5", "max_grad_norm must be a finite number ≥ 0; got -0.5"),
     ("reach.episode_seconds=0.01", "episode_seconds must last at least one control step"),
     ("run.envs=2", r"run\.envs × run\.steps_per_iteration = 2 × 30 = 60 samples per iteration, "
                    r"fewer than one minibatch \(ppo\.minibatch_size = 256\)"),
@@ -291,3 +294,148 @@ def test_a_torn_run_config_is_a_config_error_naming_the_file(tmp_path):
     (tmp_path / "config.json").write_text('{"run": {"task": ')
     with pytest.raises(ConfigError, match="config.json: not a readable run config"):
         train_commands.load_run_config(tmp_path)
+
+
+# ---- Faults: damaged run files, output folders, sizes (issue 23) -----------------------------
+
+def _echoed():
+    lines = []
+    return lines, lambda line="": lines.append(str(line))
+
+
+def _damage(path, at=0.5, count=400):
+    """Overwrite `count` bytes of the file in its middle, as a disk fault would."""
+    data = bytearray(path.read_bytes())
+    start = int(len(data) * at)
+    data[start:start + count] = bytes(range(256)) * (count // 256) + bytes(count % 256)
+    path.write_bytes(bytes(data))
+
+
+def test_a_damaged_checkpoint_is_refused_and_the_previous_one_resumed(tmp_path, capsys):
+    small_run(tmp_path, 4)                   # checkpoints at iterations 2 and 4
+    run_dir = tmp_path / "run"
+    _damage(run_dir / trainer_lib.CHECKPOINT)
+    lines, echo = _echoed()
+    _, state = train_commands.train(resume=run_dir, overrides=["run.iterations=5"], echo=echo)
+    warning = next(line for line in lines if line.startswith("warning"))
+    assert "checkpoint.msgpack: damaged" in warning and "checkpoint.previous.msgpack" in warning
+    assert any("resuming" in line and "at iteration 2" in line for line in lines)
+    assert int(state.ppo.iteration) == 5
+    assert [r["iteration"] for r in trainer_lib.read_metrics(run_dir)] == [1, 2, 3, 4, 5]
+    # With both damaged, nothing is run from either.
+    _damage(run_dir / trainer_lib.CHECKPOINT)
+    _damage(run_dir / "checkpoint.previous.msgpack")
+    with pytest.raises(SystemExit, match=r"checkpoint\.msgpack: damaged"):
+        cli.main(["eval", str(run_dir), "--episodes", "2"])
+
+
+def test_eval_prints_strict_json_and_fails_when_its_numbers_are_not_finite(tmp_path, capsys):
+    small_run(tmp_path, 2)
+    run_dir = tmp_path / "run"
+    config = train_commands.load_run_config(run_dir)
+    trainer = train_commands.make_trainer(config)
+    state = trainer_lib.load_checkpoint(trainer.init(), run_dir)
+    broken = jax.tree_util.tree_map(lambda x: jnp.full_like(x, jnp.nan), state.ppo.policy_params)
+    state = dataclasses.replace(state, ppo=dataclasses.replace(state.ppo, policy_params=broken))
+    trainer_lib.save_checkpoint(state, run_dir)
+    with pytest.raises(SystemExit, match="came out non-finite"):
+        cli.main(["eval", str(run_dir), "--episodes", "2"])
+    out = capsys.readouterr().out
+    strict = json.loads(out[out.index("{"): out.rindex("}") + 1],
+                        parse_constant=lambda name: pytest.fail(f"{name} in the JSON"))
+    assert strict["distance"] is None
+
+
+def test_a_torn_or_missing_metrics_log_is_named_on_resume_and_its_text_kept(tmp_path):
+    small_run(tmp_path, 2)
+    run_dir = tmp_path / "run"
+    log = run_dir / trainer_lib.METRICS
+    text = log.read_text()
+    log.write_text(text[:-40])               # the record of iteration 2 cut off
+    lines, echo = _echoed()
+    train_commands.train(resume=run_dir, overrides=["run.iterations=3"], echo=echo)
+    warnings = [line for line in lines if line.startswith("warning")]
+    assert "its last line was cut off" in warnings[0] and "metrics.jsonl.torn" in warnings[0]
+    assert "no record of iteration 2 " in warnings[1]
+    assert (run_dir / "metrics.jsonl.torn").read_text() == text.splitlines()[1][:-39] + "\n"
+    assert [r["iteration"] for r in trainer_lib.read_metrics(run_dir)] == [1, 3]
+    log.unlink()
+    lines, echo = _echoed()
+    train_commands.train(resume=run_dir, overrides=["run.iterations=4"], echo=echo)
+    assert any("no record of iterations 1–3" in line and "clock starts again" in line
+               for line in lines)
+
+
+def test_plot_of_a_log_with_a_bad_line_is_one_error_naming_it(tmp_path):
+    small_run(tmp_path, 2)
+    log = tmp_path / "run" / trainer_lib.METRICS
+    lines = log.read_text().splitlines()
+    log.write_text(lines[0][:30] + "\n" + lines[1] + "\n")
+    with pytest.raises(SystemExit, match=r"takeoff plot: .*metrics\.jsonl, line 1: not a log "
+                                         "record"):
+        cli.main(["plot", str(tmp_path / "run")])
+
+
+def test_an_output_folder_that_cannot_be_written_fails_before_compiling(tmp_path, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    lines, echo = _echoed()
+    with pytest.raises(OutputError, match=r"a_file/run: cannot write the run's checkpoints "
+                                          "there"):
+        train_commands.train(CONFIG, blocker / "run", ["run.iterations=1"], echo=echo)
+    assert lines == []                       # nothing compiled, nothing trained
+    monkeypatch.setattr(atomic.shutil, "disk_usage",
+                        lambda _: type("Usage", (), {"free": 1000})())
+    with pytest.raises(SystemExit, match=r"the run's checkpoints needs [\d.,]+ MB on disk, and "
+                                         r"only 0\.0 MB is free there"):
+        cli.main(["train", CONFIG, "--out", str(tmp_path / "full")])
+
+
+def test_a_failed_checkpoint_write_is_the_error_reported_and_the_last_one_kept(
+        tmp_path, monkeypatch):
+    small_run(tmp_path, 2)
+    run_dir = tmp_path / "run"
+    kept = (run_dir / trainer_lib.CHECKPOINT).read_bytes()
+
+    def full_disk(*_):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(trainer_lib, "write_msgpack", full_disk)
+    monkeypatch.setattr(train_commands, "plot", full_disk)     # the curve fails as well
+    lines, echo = _echoed()
+    with pytest.raises(CheckpointError, match=r"checkpoint\.msgpack: could not be written "
+                                              r"\(No space left on device\)"):
+        train_commands.train(resume=run_dir, overrides=["run.iterations=4"], echo=echo)
+    assert any("learning curve was not drawn" in line for line in lines)
+    assert (run_dir / trainer_lib.CHECKPOINT).read_bytes() == kept
+
+
+def test_progress_says_it_compiles_and_leaves_compile_time_out_of_the_estimate(tmp_path):
+    lines, echo = _echoed()
+    small_run(tmp_path, 2, extra=["run.seed=11"], echo=echo)   # a new trainer: it compiles
+    assert lines[1] == "compiling the rollout and the PPO update…"
+    assert lines[2].startswith("compiled, and ran the iteration, in ")
+    iterations = [line for line in lines if line.startswith("iter")]
+    assert iterations[0].endswith("left —")
+    assert not iterations[1].endswith("left —")
+
+
+@pytest.mark.parametrize("override, message", [
+    ("run.envs=1000000000000", r"'run\.envs' is 1000000000000, beyond the ±2,147,483,647"),
+    ("run.envs=2000000000", r"run\.envs × run\.steps_per_iteration = 2000000000 × 30 needs at "
+                            r"least [\d,.]+ GB of memory"),
+    ("reach.episode_seconds=1e12", r"an episode may have at most 2,147,483,647 simulation "
+                                   "steps"),
+    ("ppo.clip=nan", r"'ppo\.clip' must be a finite number; got nan"),
+])
+def test_sizes_and_numbers_that_cannot_run_are_refused_up_front(tmp_path, override, message):
+    with pytest.raises(SystemExit, match=message):
+        cli.main(["train", CONFIG, "--out", str(tmp_path / "r"), "--set", override])
+    assert not (tmp_path / "r" / trainer_lib.CHECKPOINT).exists()
+
+
+def test_a_directory_or_an_empty_file_is_not_a_config(tmp_path):
+    with pytest.raises(SystemExit, match=r"is a directory, not a config file"):
+        cli.main(["train", str(tmp_path)])
+    (tmp_path / "empty.toml").write_text("")
+    with pytest.raises(SystemExit, match=r"empty\.toml: the file holds no settings"):
+        cli.main(["train", str(tmp_path / "empty.toml")])

@@ -3,6 +3,7 @@
 import argparse
 import os
 import sys
+import warnings
 
 from jaxsim import allocator
 from jaxsim.atomic import write_text_atomic
@@ -22,6 +23,8 @@ def _load_character(spec: str):
         return characters.snake(int(arg))
     if name in characters.BUILTIN and not colon:
         return characters.BUILTIN[name]()
+    if os.path.isdir(spec):
+        raise SystemExit(f"takeoff: {spec} is a directory; give a DeepMimic character file")
     if os.path.exists(spec):
         try:
             return characters.load_deepmimic(spec)
@@ -62,10 +65,12 @@ def _cmd_search(args):
     from agents.commands import strategy_search
     from agents.config import ConfigError
     from bds.search import SearchError
+    from jaxsim.atomic import OutputError
+    from jaxsim.runlog import LogError
 
     try:
         strategy_search.run(args.config, args.out, args.set, args.workers)
-    except (ConfigError, SearchError) as error:
+    except (ConfigError, SearchError, OutputError, LogError) as error:
         raise SystemExit(f"takeoff search: {error}")
 
 
@@ -73,11 +78,12 @@ def _cmd_pvae_dataset(args):
     from agents.commands import pvae_commands
     from agents.datadir import DataDirError, data_dir_from
     from agents.pose.pose_dataset import DatasetError
+    from jaxsim.atomic import OutputError
     from jaxsim.motion import MotionFileError
 
     try:
         pvae_commands.build_dataset(data_dir_from(args.data_dir), args.out)
-    except (DataDirError, DatasetError, MotionFileError) as error:
+    except (DataDirError, DatasetError, MotionFileError, OutputError) as error:
         raise SystemExit(f"takeoff pvae dataset: {error}")
 
 
@@ -85,10 +91,11 @@ def _cmd_pvae_train(args):
     from agents.commands import pvae_commands
     from agents.config import ConfigError
     from agents.pose.pose_dataset import DatasetError
+    from jaxsim.atomic import OutputError
 
     try:
         pvae_commands.train(args.config, args.out, args.set)
-    except (ConfigError, DatasetError) as error:
+    except (ConfigError, DatasetError, OutputError) as error:
         raise SystemExit(f"takeoff pvae train: {error}")
 
 
@@ -99,10 +106,13 @@ def _run_errors():
     from agents.config import ConfigError
     from agents.datadir import DataDirError
     from agents.rl.trainer import TrainingError
+    from jaxsim.atomic import OutputError
     from jaxsim.model import ModelError
     from jaxsim.motion import MotionFileError
+    from jaxsim.runlog import LogError
 
-    return ConfigError, DataDirError, CheckpointError, TrainingError, ModelError, MotionFileError
+    return (ConfigError, DataDirError, CheckpointError, TrainingError, ModelError,
+            MotionFileError, OutputError, LogError)
 
 
 def _cmd_train(args):
@@ -130,7 +140,10 @@ def _cmd_eval(args):
 def _cmd_plot(args):
     from agents.commands import train_commands
 
-    path = train_commands.plot(args.run_dir)
+    try:
+        path = train_commands.plot(args.run_dir)
+    except _run_errors() as error:
+        raise SystemExit(f"takeoff plot: {error}")
     if path is None:
         raise SystemExit(f"takeoff plot: {args.run_dir} has no metrics yet")
     print(f"wrote {path}")
@@ -155,6 +168,10 @@ def _gif_path(text):
     return text
 
 
+DATA_DIR_HELP = ("reference data directory (default: $TAKEOFF_DATA, else ../shared/data beside "
+                 "the checkout)")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="takeoff", description="Batched, differentiable character simulation in JAX.")
@@ -174,14 +191,14 @@ def build_parser():
                                  "is resumed")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a config value (repeatable)")
-    p.add_argument("--workers", type=int, default=1,
+    p.add_argument("--workers", type=_positive_int, default=1,
                    help="evaluate a round's points in this many threads at once")
     p.set_defaults(run=_cmd_search)
     p = sub.add_parser("pvae", help="the pose VAE: build its dataset from motion capture, train it")
     pvae_sub = p.add_subparsers(dest="pvae_command", metavar="STEP", required=True)
     q = pvae_sub.add_parser("dataset", help="retarget CMU 01-03 and DeepMimic clips to the "
                                             "humanoid and save 30 Hz pose features")
-    q.add_argument("--data-dir", help="reference data directory (default: $TAKEOFF_DATA)")
+    q.add_argument("--data-dir", help=DATA_DIR_HELP)
     q.add_argument("--out", default="poses.npz", help="dataset file (default poses.npz)")
     q.set_defaults(run=_cmd_pvae_dataset)
     q = pvae_sub.add_parser("train", help="train a P-VAE from a config, e.g. configs/pvae.toml")
@@ -196,7 +213,7 @@ def build_parser():
     p.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its checkpoint")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a config value (repeatable)")
-    p.add_argument("--data-dir", help="reference data directory (default: $TAKEOFF_DATA)")
+    p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_train)
     p = sub.add_parser("eval", help="run a trained policy deterministically and report")
     p.add_argument("run_dir", help="a run directory from takeoff train")
@@ -204,7 +221,7 @@ def build_parser():
                    help="how many episodes to run (default 8)")
     p.add_argument("--render", metavar="OUT.gif", type=_gif_path,
                    help="also write an animation of episode 0")
-    p.add_argument("--data-dir", help="reference data directory (default: $TAKEOFF_DATA)")
+    p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_eval)
     p = sub.add_parser("plot", help="draw a run's learning curve (learning_curve.png)")
     p.add_argument("run_dir")
@@ -212,7 +229,13 @@ def build_parser():
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Warnings (a log set aside, …) as one line for the user, without a source location."""
+    print(f"takeoff: warning: {message}", file=file or sys.stderr)
+
+
 def main(argv=None):
+    warnings.showwarning = _show_warning
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:

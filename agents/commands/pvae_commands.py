@@ -6,12 +6,14 @@ from pathlib import Path
 from agents import config as config_io
 from agents.pose import pose_dataset, pvae, pvae_report
 from jaxsim import characters
+from jaxsim.atomic import check_writable
 
 PCA_SHARE = 0.85
 
 
 def build_dataset(data_dir, out, echo=print):
     """Build, save and summarise the pose dataset; a PCA plot goes beside it as <out>_pca.png."""
+    check_writable(Path(out).parent, what="the pose dataset")
     model = characters.humanoid()
     start = time.perf_counter()
     echo(f"collecting poses from {data_dir} at {pose_dataset.FRAME_RATE:g} Hz")
@@ -38,6 +40,7 @@ def train(config_path, out_dir=None, overrides=(), echo=print):
     out_dir = config_io.run_directory(config_path, out_dir,
                                       lambda d: d.is_dir() and any(d.iterdir()),
                                       "pick another --out, or empty it first")
+    check_writable(out_dir, what="the P-VAE's weights and report")
     model = characters.humanoid()
     dataset = pose_dataset.load(config.data.dataset, model)
     echo(f"P-VAE: {len(dataset)} poses from {config.data.dataset}, latent "

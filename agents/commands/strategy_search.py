@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import config as config_io
-from jaxsim.atomic import write_text_atomic
+from jaxsim.atomic import check_writable, write_text_atomic
 from bds.gp import to_unit
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.search import SearchSettings, check_bounds, logged_evaluations, search
@@ -120,6 +120,7 @@ def run(config_path, out_dir=None, overrides=(), workers=1, echo=print):
     text = json.dumps(dataclasses.asdict(config), indent=2) + "\n"
     if log.exists():
         _check_resumable(out_dir, json.loads(text))
+    check_writable(out_dir, what="the search's log")
     write_text_atomic(out_dir / "config.json", text)
     g, label = black_box(config)
     settings = config.search

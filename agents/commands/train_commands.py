@@ -20,6 +20,7 @@ import jax
 import numpy as np
 
 from agents import config as config_io
+from agents.checkpoint import previous_path
 from agents.rl import trainer as trainer_lib
 from agents.datadir import data_dir_from
 from agents.rl.ppo import PPOSettings
@@ -27,7 +28,7 @@ from agents.rl.rollout import make_rollout, start_runner
 from agents.rl.trainer import RunSettings
 from agents.tasks import registry
 from jaxsim import xla_options
-from jaxsim.atomic import write_text_atomic
+from jaxsim.atomic import check_writable, write_text_atomic
 
 CONFIG = "config.json"
 CURVE = "learning_curve.png"
@@ -168,24 +169,61 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
             config_path, out_dir, lambda d: (d / trainer_lib.CHECKPOINT).exists(),
             "resume it with `takeoff train --resume {run_dir}` or pick another --out")
     trainer = _trainer_for(config, source, data_dir)
+    state_bytes, sample_bytes = trainer.footprint()
+    _check_memory(state_bytes + sample_bytes, source,
+                  f"run.envs × run.steps_per_iteration = {config.run.envs} × "
+                  f"{config.run.steps_per_iteration}")
+    existing = sum(f.stat().st_size for f in (run_dir / trainer_lib.CHECKPOINT,
+                   previous_path(run_dir / trainer_lib.CHECKPOINT)) if f.is_file())
+    check_writable(run_dir, 3 * state_bytes - existing + 2**20, "the run's checkpoints")
     state = trainer.init()
     if resume is not None:     # the checkpoint must fit (overrides included) before anything
-        state = trainer_lib.load_checkpoint(state, run_dir)        # in run_dir is rewritten
+        state = trainer_lib.load_checkpoint(state, run_dir, echo)  # in run_dir is rewritten
         done = trainer_lib.completed_iterations(state)
         echo(f"resuming {run_dir} at iteration {done}")
     else:
         done = 0                                  # a run that died before its first checkpoint
-    run_dir.mkdir(parents=True, exist_ok=True)    # left lines that do not count
-    trainer_lib.trim_metrics(run_dir, done)
+    trainer_lib.trim_metrics(run_dir, done, echo)  # left lines that do not count
     write_text_atomic(run_dir / CONFIG, json.dumps(config.sections(), indent=2) + "\n")
     s = config.run
     echo(f"training {s.task}: {s.envs} environments × {s.steps_per_iteration} steps = "
          f"{s.samples_per_iteration} samples per iteration, {s.iterations} iterations → {run_dir}")
     try:
         state = trainer_lib.run(trainer, state, run_dir, echo)
-    finally:
-        plot(run_dir, quiet=True)
+    finally:                      # the curve of what was done, whatever ended the run; its own
+        _plot_after_run(run_dir, echo)     # failure must not hide the run's error
     return trainer, state
+
+
+def _plot_after_run(run_dir, echo):
+    """`plot`, its failure said as a warning (a run's result does not depend on its picture)."""
+    try:
+        plot(run_dir, quiet=True)
+    except Exception as error:          # noqa: BLE001 — any failure of the picture
+        echo(f"warning: the learning curve was not drawn: {error}")
+
+
+def _available_memory() -> int | None:
+    """The bytes of memory available to a new program (Linux's MemAvailable; None elsewhere)."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _check_memory(need: int, source, what: str):
+    """A ConfigError naming `what` (the keys that size the run, with their values) when `need`
+    bytes, a lower bound of what the run needs, exceed the memory available."""
+    available = _available_memory()
+    if available is not None and need > available:
+        raise config_io.ConfigError(
+            f"{source}: {what} needs at least {need / 1e9:,.1f} GB of memory (the environments' "
+            f"states and the samples of one rollout), and this machine has "
+            f"{available / 1e9:,.1f} GB available; make it smaller")
 
 
 def _resume_overrides(config: TrainConfig, overrides, source) -> TrainConfig:
@@ -215,8 +253,14 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     starts; report the mean return, length and task metrics over each first episode. Returns
     the summary, the environment and the poses of episode 0 (steps, nq)."""
     config = load_run_config(run_dir)
-    trainer = _trainer_for(config, Path(run_dir) / CONFIG, data_dir)
-    state = trainer_lib.load_checkpoint(trainer.init(), run_dir)
+    source = Path(run_dir) / CONFIG
+    trainer = _trainer_for(config, source, data_dir)
+    env = trainer.env_for(trainer.curriculum.init())
+    state_bytes, sample_bytes = trainer.footprint(episodes, env.episode_steps)
+    _check_memory(state_bytes + sample_bytes, source, f"--episodes {episodes}")
+    if render_path is not None:
+        check_writable(Path(render_path).parent, what="the animation")
+    state = trainer_lib.load_checkpoint(trainer.init(), run_dir, echo)
     env = trainer.env_for(state.curriculum)          # at the run's difficulty
     params = trainer.env_params_for(state.curriculum, episodes)
     rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply,
@@ -239,14 +283,20 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
                "terminated": float((np.asarray(batch.terminated) * first).any(0).mean()),
                **{k: _mean(np.asarray(v), at_end if k.startswith("episode/") else first)
                   for k, v in metrics.items()}}
-    echo(json.dumps(summary, indent=2))
+    broken = sorted(k for k, v in summary.items() if v is not None and not np.isfinite(v))
+    echo(json.dumps({k: v if k not in broken else None for k, v in summary.items()}, indent=2))
+    if broken:
+        raise trainer_lib.TrainingError(
+            f"{run_dir}: the evaluation's {', '.join(broken)} came out non-finite (shown as "
+            "null): the policy's simulation blew up")
     poses = np.asarray(physics.q)[:int(steps[0]), 0]
     if render_path is not None:
         from jaxsim import render
-        world = (env.world_for(jax.tree_util.tree_map(lambda x: x[0], runner.envs.task))
-                 if hasattr(env, "world_for") else env.world)
-        render.animation(env.model, poses, render_path, world=world,
-                         fps=1.0 / env.control_dt)
+        task = jax.tree_util.tree_map(lambda x: x[0], runner.envs.task)     # episode 0's
+        world = env.world_for(task) if hasattr(env, "world_for") else env.world
+        render.animation(env.model, poses, render_path, world=world, fps=1.0 / env.control_dt,
+                         times=env.control_dt * np.arange(1, len(poses) + 1),
+                         markers=env.markers(task) if hasattr(env, "markers") else None)
         echo(f"animation of episode 0 ({len(poses)} steps) → {render_path}")
     return summary, env, poses
 

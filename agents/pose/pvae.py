@@ -27,7 +27,7 @@ import optax
 
 from agents.pose import pose_dataset, pose_features
 from agents import config as config_io
-from agents.checkpoint import CheckpointError, fill, read_msgpack
+from agents.checkpoint import CheckpointError, fill, read_msgpack, write_msgpack
 from jaxsim.atomic import atomic_path, write_text_atomic
 from jaxsim.model import Model
 
@@ -272,8 +272,7 @@ def naturalness_of_norm(offset_norm, c_offset):
 def save(result: TrainResult, config: PVAEConfig, out_dir):
     """Weights (msgpack), normalisation record (npz) and the resolved config (JSON)."""
     out_dir = Path(out_dir)
-    with atomic_path(out_dir / WEIGHTS_FILE) as tmp:
-        Path(tmp).write_bytes(flax.serialization.to_bytes(result.params))
+    write_msgpack(out_dir / WEIGHTS_FILE, flax.serialization.to_state_dict(result.params))
     with atomic_path(out_dir / NORMALISATION_FILE) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, **{k: np.asarray(v) for k, v in
@@ -295,9 +294,10 @@ def load_decoder(run_dir, model: Model) -> PoseDecoder:
                              str(run_dir / "config.json"))
     target_size = pose_features.PoseLayout.of(model).target_size
     network = network_of(config, target_size)
-    with np.load(run_dir / NORMALISATION_FILE) as data:
-        norm = Normalisation(*(jnp.asarray(data[k]) for k in (
-            "feature_mean", "feature_std", "target_mean", "target_std")))
+    arrays = pose_dataset.read_npz(
+        run_dir / NORMALISATION_FILE, ("feature_mean", "feature_std", "target_mean", "target_std"),
+        CheckpointError, "not the normalisation record of a P-VAE run (`takeoff pvae train`)")
+    norm = Normalisation(*(jnp.asarray(a) for a in arrays.values()))
     if norm.target_mean.shape != (target_size,):
         raise CheckpointError(f"{run_dir / NORMALISATION_FILE}: this P-VAE decodes "
                               f"{norm.target_mean.shape[0]} numbers; the character needs "

@@ -7,6 +7,10 @@ world, the clip, reward weights) and exposes pure functions of one environment:
     reset(params, key) -> EnvState
     step(params, state, action) -> EnvState
 
+Two optional methods serve rendering (`takeoff eval --render`): `world_for(task)`, the world of
+an episode whose task state is `task` (a bar at its height), and `markers(task)`, world points
+(k, 3) to draw over it (a goal).
+
 `params` is the task-parameter pytree (gravity, bar height, …: anything a sweep may vmap over or
 differentiate); `default_params()` gives it. Batching is `jax.vmap` over states (and keys), done by
 the rollout, which also resets finished environments automatically.
@@ -23,7 +27,7 @@ from typing import Any, Protocol
 import jax
 import jax.numpy as jnp
 
-from agents.config import check_positive
+from agents.config import MAX_INT, check_positive
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,3 +120,7 @@ def check_timing(settings: TaskTiming):
     if settings.episode_steps < 1:
         raise ValueError(f"episode_seconds must last at least one control step "
                          f"(1/{settings.control_hz} s); got {settings.episode_seconds}")
+    if settings.episode_steps * settings.substeps > MAX_INT:
+        raise ValueError(f"episode_seconds = {settings.episode_seconds} is "
+                         f"{settings.episode_steps:,} control steps of {settings.substeps} "
+                         f"substeps; an episode may have at most {MAX_INT:,} simulation steps")

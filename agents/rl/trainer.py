@@ -18,9 +18,11 @@ batch, or given per environment with `params_per_env`), so they may differ withi
 curriculum whose schedule changes something that shapes the program (the control rate) names it
 by a static key: the trainer compiles one rollout per key, with the env's `variant(key)`.
 
-The Python loop in `run` only logs (`metrics.jsonl`, one line per iteration), shows progress,
-checkpoints atomically every `checkpoint_every` iterations and at the end, and on Ctrl-C saves
-a checkpoint before it stops. Each iteration also reports one flag, computed in the compiled
+The Python loop in `run` only logs (`metrics.jsonl`, one line per iteration, read back by the
+policy of `jaxsim.runlog`), shows progress (saying when it compiles, and leaving compile time out
+of the time it estimates), checkpoints atomically with a checksum every `checkpoint_every`
+iterations and at the end, keeping the one before (`agents.checkpoint`: a damaged checkpoint is
+passed over for it), and on Ctrl-C saves a checkpoint before it stops. Each iteration also reports one flag, computed in the compiled
 function, that its rewards, observation statistics, losses and network parameters are all
 finite; when they are not, the loop stops with a `TrainingError` naming the iteration and the
 quantities, and saves nothing, so the last checkpoint (of finite weights) is kept.
@@ -34,17 +36,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import flax.serialization
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.checkpoint import fill, read_msgpack
+from agents.checkpoint import (CheckpointError, fill, newest_intact, read_msgpack,
+                               write_msgpack)
 from agents.rl import curriculum as curriculum_lib
 from agents.rl import rollout as rollout_lib
 from agents.rl.networks import sigma_at
 from agents.rl.ppo import PPOSettings, PPOState, RunningNorm, make_ppo
-from jaxsim import xla_options
+from jaxsim import runlog, xla_options
 from jaxsim.atomic import atomic_path
 
 CHECKPOINT = "checkpoint.msgpack"
@@ -162,6 +164,31 @@ class Trainer:
         return TrainState(self.ppo.init(ppo_key, runner.envs.obs.dtype), norm, runner, key,
                           curriculum)
 
+    def compiles_next(self, state: TrainState) -> str:
+        """What the next `iteration(state)` compiles first ("" when nothing): the first
+        iteration its rollout and the update, the first at each new static key of the
+        curriculum its rollout."""
+        key = self._static_key(state.curriculum)
+        if key in self._compiled:
+            return ""
+        return ("the rollout for the curriculum's next stage ({key})" if self._compiled else
+                "the rollout and the PPO update").format(key=key)
+
+    def footprint(self, envs: int | None = None, steps: int | None = None) -> tuple[int, int]:
+        """(bytes of the training state, bytes of the samples of a rollout of `envs` × `steps`,
+        by default one iteration's), from shapes alone (nothing is allocated): the size of a
+        checkpoint, and with it a lower bound on the memory the run needs."""
+        state = jax.eval_shape(self.init)
+        state_bytes = sum(leaf.size * leaf.dtype.itemsize
+                          for leaf in jax.tree_util.tree_leaves(state))
+        dtype = state.runner.envs.obs.dtype
+        # observations raw and normalised, actions and their means, log-probability, value,
+        # reward, return, advantage and the two episode flags
+        per_sample = 2 * self.env.observation_size + 2 * self.env.action_size + 7
+        samples = ((envs or self.run_settings.envs)
+                   * (steps or self.run_settings.steps_per_iteration))
+        return state_bytes, samples * per_sample * dtype.itemsize
+
     def iteration(self, state: TrainState):
         """One iteration: (the next state, its metrics, whether what it computed is finite).
 
@@ -236,19 +263,33 @@ def _all_finite(tree):
 # ---- Checkpoints -------------------------------------------------------------------------------
 
 def save_checkpoint(state: TrainState, run_dir):
-    """The state's leaves (arrays, in pytree order) as msgpack, written atomically."""
+    """The state's leaves (arrays, in pytree order), written atomically with their checksum;
+    the checkpoint it replaces is kept as checkpoint.previous.msgpack."""
     leaves = [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(jax.device_get(state))]
-    with atomic_path(Path(run_dir) / CHECKPOINT) as tmp:
-        Path(tmp).write_bytes(flax.serialization.msgpack_serialize(leaves))
-
-
-def load_checkpoint(template: TrainState, run_dir) -> TrainState:
-    """A checkpoint read into the structure of `template` (a fresh `Trainer.init()` of the same
-    config); a missing or unreadable file, or leaves that do not match in number, shape or
-    dtype, are a `CheckpointError`."""
     path = Path(run_dir) / CHECKPOINT
-    stored = read_msgpack(path, "the run has no checkpoint to resume from")
-    return fill(template, stored, path, "this run's config")
+    try:
+        write_msgpack(path, leaves)
+    except OSError as error:
+        kept = " (the checkpoint before it is kept)" if path.exists() else ""
+        raise CheckpointError(f"{path}: could not be written ({error.strerror or error})"
+                              f"{kept}") from None
+
+
+def load_checkpoint(template: TrainState, run_dir, echo=print) -> TrainState:
+    """The newest intact checkpoint read into the structure of `template` (a fresh
+    `Trainer.init()` of the same config): a damaged checkpoint is passed over for the one before
+    it, saying so through `echo`; with none intact, or leaves that do not match in number,
+    shape or dtype, a `CheckpointError` naming the file."""
+    path = Path(run_dir) / CHECKPOINT
+
+    def read(file):
+        stored = read_msgpack(file, "the run has no checkpoint to resume from")
+        return fill(template, stored, file, "this run's config")
+
+    state, note = newest_intact(path, read)
+    if note:
+        echo(f"warning: {note}")
+    return state
 
 
 def completed_iterations(state: TrainState) -> int:
@@ -257,10 +298,11 @@ def completed_iterations(state: TrainState) -> int:
 
 # ---- The loop --------------------------------------------------------------------------------
 
-def _line(record, total, resumed_at, first):
-    elapsed = time.perf_counter() - resumed_at
-    done = record["iteration"] - first
-    left = elapsed / max(done, 1) * (total - record["iteration"])
+def _line(record, total, seconds_per_iteration):
+    """The progress line of an iteration; the time left from the mean time of the iterations
+    that did not compile (None: none yet)."""
+    left = ("—" if seconds_per_iteration is None else
+            f"{seconds_per_iteration * (total - record['iteration']) / 60:5.1f} min")
     ret = record["return"]
     task = ""                                       # what a task with a curriculum shows
     if record.get(DIFFICULTY) is not None:
@@ -270,7 +312,7 @@ def _line(record, total, resumed_at, first):
     return (f"iter {record['iteration']:>5}/{total}  {record['samples_per_second']:>8.0f} "
             f"samples/s  return {'—' if ret is None else f'{ret:8.3f}'}  "
             f"len {record['episode_length'] or 0:6.1f}{task}  σ {record['sigma']:.3f}  "
-            f"left {left / 60:5.1f} min")
+            f"left {left}")
 
 
 def _json_value(value):
@@ -292,43 +334,53 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
     before = logged[-1]["seconds"] if logged else 0.0   # a resumed run's clock goes on
     resumed_at = last_time = time.perf_counter()
     started = resumed_at - before
+    timed_seconds, timed_iterations = 0.0, 0    # iterations that did not compile, for the ETA
     try:
-        with open(run_dir / METRICS, "a", encoding="utf-8") as log:
-            for _ in range(first, settings.iterations):
-                # `state` moves on only once its iteration is logged, so a Ctrl-C checkpoints
-                # the last state whose line is in the log.
-                new_state, metrics, finite = trainer.iteration(state)
-                metrics = jax.device_get(metrics)
-                if not finite:
-                    raise _non_finite(new_state, metrics, run_dir, saved)
-                now = time.perf_counter()
-                record = {"iteration": completed_iterations(new_state),
-                          "samples": int(new_state.ppo.samples),
-                          "samples_per_second": settings.samples_per_iteration / (now - last_time),
-                          "seconds": now - started,
-                          **{k: _json_value(v) for k, v in metrics.items()}}
-                last_time = now
-                log.write(json.dumps(record) + "\n")
-                log.flush()
-                state = new_state
-                if record["iteration"] % settings.progress_every == 0:
-                    echo(_line(record, settings.iterations, resumed_at, first))
-                if record["iteration"] % settings.checkpoint_every == 0:
-                    save_checkpoint(state, run_dir)
-                    saved = record["iteration"]
-                if (settings.time_limit_minutes
-                        and now - resumed_at > 60 * settings.time_limit_minutes):
-                    echo(f"time limit of {settings.time_limit_minutes:g} min reached")
-                    break
-                if _reached(record, settings.stop_difficulty):
-                    echo(f"difficulty {record[DIFFICULTY]:g} reached at "
-                         f"{record['seconds'] / 60:.1f} min")
-                    break
+        for _ in range(first, settings.iterations):
+            # `state` moves on only once its iteration is logged, so a Ctrl-C checkpoints
+            # the last state whose line is in the log.
+            compiling = trainer.compiles_next(state)
+            if compiling:
+                echo(f"compiling {compiling}…")
+            new_state, metrics, finite = trainer.iteration(state)
+            metrics = jax.device_get(metrics)
+            if not finite:
+                raise _non_finite(new_state, metrics, run_dir, saved)
+            now = time.perf_counter()
+            if compiling:
+                echo(f"compiled, and ran the iteration, in {now - last_time:.1f} s")
+            else:
+                timed_seconds, timed_iterations = timed_seconds + now - last_time, \
+                    timed_iterations + 1
+            record = {"iteration": completed_iterations(new_state),
+                      "samples": int(new_state.ppo.samples),
+                      "samples_per_second": settings.samples_per_iteration / (now - last_time),
+                      "seconds": now - started,
+                      **{k: _json_value(v) for k, v in metrics.items()}}
+            last_time = now
+            runlog.append(run_dir / METRICS, record)
+            state = new_state
+            if record["iteration"] % settings.progress_every == 0:
+                echo(_line(record, settings.iterations,
+                           timed_seconds / timed_iterations if timed_iterations else None))
+            if record["iteration"] % settings.checkpoint_every == 0:
+                save_checkpoint(state, run_dir)
+                saved = record["iteration"]
+            if (settings.time_limit_minutes
+                    and now - resumed_at > 60 * settings.time_limit_minutes):
+                echo(f"time limit of {settings.time_limit_minutes:g} min reached")
+                break
+            if _reached(record, settings.stop_difficulty):
+                echo(f"difficulty {record[DIFFICULTY]:g} reached at "
+                     f"{record['seconds'] / 60:.1f} min")
+                break
     except KeyboardInterrupt:
         echo(f"\ninterrupted: checkpoint at iteration {completed_iterations(state)} in {run_dir}")
-        save_checkpoint(state, run_dir)
+        if completed_iterations(state) != saved:
+            save_checkpoint(state, run_dir)
         raise
-    save_checkpoint(state, run_dir)
+    if completed_iterations(state) != saved:  # (saving it again would push out the previous
+        save_checkpoint(state, run_dir)        # checkpoint, the fallback from a damaged one)
     return state
 
 
@@ -349,25 +401,45 @@ def _non_finite(state: TrainState, metrics, run_dir, saved) -> TrainingError:
 
 
 def read_metrics(run_dir) -> list[dict]:
-    """The log's records; a torn last line (a run killed while writing it) is left out."""
-    path = Path(run_dir) / METRICS
-    if not path.exists():
-        return []
-    lines = [line for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
-    records = []
-    for number, line in enumerate(lines, 1):
-        try:
-            records.append(json.loads(line))
-        except json.JSONDecodeError:
-            if number < len(lines):
-                raise TrainingError(f"{path}:{number}: not a JSON record") from None
-    return records
+    """The log's records, read by the one policy of `jaxsim.runlog` (a torn last line is not a
+    record; a bad line before it is a `runlog.LogError` naming the file and line); each must
+    carry its iteration number."""
+    log = runlog.read(Path(run_dir) / METRICS)
+    _check_iterations(log)
+    return log.records
 
 
-def trim_metrics(run_dir, iterations: int):
-    """Drop log lines past `iterations` (written after the last checkpoint of a killed run), so
-    a resumed run's log has each iteration once; 0 empties the log."""
-    path = Path(run_dir) / METRICS
-    kept = [r for r in read_metrics(run_dir) if r["iteration"] <= iterations]
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text("".join(json.dumps(r) + "\n" for r in kept), encoding="utf-8")
+def _check_iterations(log: runlog.Log):
+    for record in log.records:
+        if not isinstance(record.get("iteration"), int):
+            raise runlog.LogError(f"{log.path}: the record {json.dumps(record)[:80]} has no "
+                                  "iteration number")
+
+
+def trim_metrics(run_dir, iterations: int, echo=print):
+    """Make the log hold iterations 1..`iterations` only (a killed run wrote lines past its
+    last checkpoint), so a resumed run's log has each iteration once; 0 empties it. A torn last
+    line is set aside in `metrics.jsonl.torn`, and iterations the checkpoint has done but the
+    log has no record of (a log cut short or deleted) are named: both said through `echo`."""
+    log = runlog.read(Path(run_dir) / METRICS)
+    _check_iterations(log)
+    kept = [r for r in log.records if r["iteration"] <= iterations]
+    note = runlog.repair(log, kept)
+    if note:
+        echo(f"warning: {note}")
+    missing = sorted(set(range(1, iterations + 1)) - {r["iteration"] for r in kept})
+    if missing:
+        echo(f"warning: {log.path} has no record of iteration{'s' if len(missing) > 1 else ''} "
+             f"{_ranges(missing)} (the log was cut short or deleted); the run goes on from its "
+             f"checkpoint at iteration {iterations}, and those records stay missing"
+             + ("; its clock starts again at 0" if iterations in missing else ""))
+
+
+def _ranges(numbers) -> str:
+    """Sorted whole numbers as "1–3, 7"."""
+    spans, start = [], numbers[0]
+    for previous, number in zip(numbers, numbers[1:] + [None]):
+        if number != previous + 1:
+            spans.append(f"{start}" if start == previous else f"{start}–{previous}")
+            start = number
+    return ", ".join(spans)
