@@ -288,7 +288,7 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     if broken:
         raise trainer_lib.TrainingError(
             f"{run_dir}: the evaluation's {', '.join(broken)} came out non-finite (shown as "
-            "null): the policy's simulation blew up")
+            "null above)")
     poses = np.asarray(physics.q)[:int(steps[0]), 0]
     if render_path is not None:
         from jaxsim import render
