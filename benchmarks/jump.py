@@ -37,6 +37,7 @@ import training_speed
 from agents.commands import train_commands
 from agents.rl import trainer as trainer_lib
 from agents.pose import pose_features
+from agents.commands.cli import run_errors
 from agents.tasks import jump, registry, takeoff_state
 from jaxsim import allocator, batch_last, kinematics, render, simulation, xla_options
 from jaxsim.atomic import write_text_atomic
@@ -237,7 +238,10 @@ def main():
     p.add_argument("--episodes", type=int, default=16)
     p.set_defaults(run=report)
     args = parser.parse_args()
-    args.run(args)
+    try:
+        args.run(args)
+    except run_errors() as error:
+        raise SystemExit(f"benchmarks/jump.py {args.command}: {error}")
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ from jaxsim.world import make_world  # noqa: E402
 def data_dir() -> pathlib.Path:
     """The reference data, where the commands look for it (`agents.datadir`); a missing one is
     a failure."""
-    path = pathlib.Path(os.environ.get("TAKEOFF_DATA") or datadir.CHECKOUT_DEFAULT).resolve()
+    path = pathlib.Path(os.environ.get("TAKEOFF_DATA") or datadir.checkout_default()).resolve()
     if not (path / "deepmimic" / "characters" / "humanoid3d.txt").exists():
         pytest.fail(f"reference data not found in {path}; set TAKEOFF_DATA to ../shared/data")
     return path

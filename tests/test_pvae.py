@@ -257,10 +257,17 @@ def test_weights_that_do_not_fit_name_the_file_and_the_leaf(tmp_path, humanoid):
 def test_the_data_directory_is_the_one_named_else_the_checkout_default(
         monkeypatch, tmp_path, data_dir):
     monkeypatch.delenv("TAKEOFF_DATA", raising=False)
-    assert datadir.data_dir_from() == datadir.CHECKOUT_DEFAULT     # a checkout needs nothing
-    monkeypatch.setattr(datadir, "CHECKOUT_DEFAULT", tmp_path / "nowhere")
-    with pytest.raises(SystemExit, match=r"no data directory at .*nowhere \(the default beside "
-                                         r"the checkout\); name it with --data-dir or "
+    assert datadir.data_dir_from() == datadir.checkout_default()   # a checkout needs nothing
+    assert datadir.data_dir_from().resolve() == data_dir
+    # Installed by copy (no checkout around the package): beside the current directory.
+    monkeypatch.setattr(datadir, "_PACKAGE_CHECKOUT", tmp_path / "site-packages")
+    (tmp_path / "shared" / "data").mkdir(parents=True)
+    (tmp_path / "checkout").mkdir()
+    monkeypatch.chdir(tmp_path / "checkout")
+    assert datadir.data_dir_from() == tmp_path / "shared" / "data"
+    (tmp_path / "shared" / "data").rmdir()
+    with pytest.raises(SystemExit, match=r"no data directory at .*shared/data \(the default "
+                                         r"beside the checkout\); name it with --data-dir or "
                                          "TAKEOFF_DATA"):
         cli.main(["pvae", "dataset", "--out", str(tmp_path / "poses.npz")])
     monkeypatch.setenv("TAKEOFF_DATA", str(tmp_path / "elsewhere"))

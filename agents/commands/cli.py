@@ -99,9 +99,10 @@ def _cmd_pvae_train(args):
         raise SystemExit(f"takeoff pvae train: {error}")
 
 
-def _run_errors():
+def run_errors():
     """The errors of a training or evaluation run that are the user's to fix: a config, data
-    or run directory that cannot be used, or a run that went non-finite."""
+    or run directory that cannot be used, or a run that went non-finite (a tuple for `except`;
+    the benchmark scripts that drive runs catch them too)."""
     from agents.checkpoint import CheckpointError
     from agents.config import ConfigError
     from agents.datadir import DataDirError
@@ -122,7 +123,7 @@ def _cmd_train(args):
         raise SystemExit("takeoff train: give a CONFIG to start a run or --resume DIR, not both")
     try:
         train_commands.train(args.config, args.out, args.set, args.resume, args.data_dir)
-    except _run_errors() as error:
+    except run_errors() as error:
         raise SystemExit(f"takeoff train: {error}")
     except KeyboardInterrupt:
         raise SystemExit(130)
@@ -133,7 +134,7 @@ def _cmd_eval(args):
 
     try:
         train_commands.evaluate(args.run_dir, args.episodes, args.render, args.data_dir)
-    except _run_errors() as error:
+    except run_errors() as error:
         raise SystemExit(f"takeoff eval: {error}")
 
 
@@ -142,7 +143,7 @@ def _cmd_plot(args):
 
     try:
         path = train_commands.plot(args.run_dir)
-    except _run_errors() as error:
+    except run_errors() as error:
         raise SystemExit(f"takeoff plot: {error}")
     if path is None:
         raise SystemExit(f"takeoff plot: {args.run_dir} has no metrics yet")

@@ -324,6 +324,8 @@ def _first_episode_mask(ended):
 def plot(run_dir, quiet=False):
     """The learning curve (return and episode length against samples) as a PNG."""
     run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise config_io.ConfigError(f"{run_dir}: no such run directory")
     try:
         from jaxsim import render
         plt = render.pyplot()
