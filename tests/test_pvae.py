@@ -223,14 +223,20 @@ def test_settings_refuse_numbers_that_are_not_finite(settings, key, value):
         settings(**{key: value})
 
 
-def test_weights_that_do_not_fit_name_the_file_and_the_leaf(tmp_path, humanoid):
+def _save_small_pvae(humanoid, run_dir):
+    """A P-VAE run directory of untrained weights, hidden layers of 8; returns the weights."""
     layout = pose_features.PoseLayout.of(humanoid)
     config = pvae.PVAEConfig(model=pvae.ModelSettings(hidden=(8,)))
     params = pvae.network_of(config, layout.target_size).init(
         jax.random.PRNGKey(0), jnp.zeros((1, layout.feature_size)), jax.random.PRNGKey(1))["params"]
     norm = pvae.Normalisation(jnp.zeros(layout.feature_size), jnp.ones(layout.feature_size),
                               jnp.zeros(layout.target_size), jnp.ones(layout.target_size))
-    pvae.save(pvae.TrainResult(params, norm, [], 0.0), config, tmp_path)
+    pvae.save(pvae.TrainResult(params, norm, [], 0.0), config, run_dir)
+    return params
+
+
+def test_weights_that_do_not_fit_name_the_file_and_the_leaf(tmp_path, humanoid):
+    params = _save_small_pvae(humanoid, tmp_path)
     assert pvae.load_decoder(tmp_path, humanoid).params["decoder"]["Dense_0"]["kernel"].shape \
         == (13, 8)
     weights = tmp_path / pvae.WEIGHTS_FILE
@@ -306,13 +312,7 @@ def test_files_that_are_not_pose_datasets_are_named_without_pickle_advice(tmp_pa
 
 
 def test_a_normalisation_record_that_is_not_an_npz_archive_is_named(tmp_path, humanoid):
-    layout = pose_features.PoseLayout.of(humanoid)
-    config = pvae.PVAEConfig(model=pvae.ModelSettings(hidden=(8,)))
-    params = pvae.network_of(config, layout.target_size).init(
-        jax.random.PRNGKey(0), jnp.zeros((1, layout.feature_size)), jax.random.PRNGKey(1))["params"]
-    norm = pvae.Normalisation(jnp.zeros(layout.feature_size), jnp.ones(layout.feature_size),
-                              jnp.zeros(layout.target_size), jnp.ones(layout.target_size))
-    pvae.save(pvae.TrainResult(params, norm, [], 0.0), config, tmp_path)
+    _save_small_pvae(humanoid, tmp_path)
     record = tmp_path / pvae.NORMALISATION_FILE
     for contents in (b"feature_mean 0 0 0\n", record.read_bytes()[:80]):
         record.write_bytes(contents)
