@@ -15,6 +15,7 @@ and the leaf, not arrays of the wrong size flowing into a computation.
 
 import hashlib
 import os
+import shutil
 from pathlib import Path
 
 import flax.serialization
@@ -50,11 +51,24 @@ def write_msgpack(path, contents):
         {"format": FORMAT, "sha256": hashlib.sha256(payload).hexdigest(), "payload": payload})
     with atomic_path(path) as tmp:
         Path(tmp).write_bytes(envelope)
-        if _intact(path):                   # a damaged one is overwritten, the previous kept
-            os.replace(path, previous_path(path))
+        if intact(path):                    # a damaged one is overwritten, the previous kept
+            _keep_as_previous(path)
 
 
-def _intact(path) -> bool:
+def _keep_as_previous(path):
+    """Make `previous_path(path)` a copy of the file at `path` (a hard link where the file
+    system has them), which stays in place: no moment without either."""
+    previous = previous_path(path)
+    link = previous.with_name(previous.name + ".tmp")
+    link.unlink(missing_ok=True)
+    try:
+        os.link(path, link)
+    except OSError:
+        shutil.copyfile(path, link)
+    os.replace(link, previous)
+
+
+def intact(path) -> bool:
     """Whether the file at `path` exists and reads, its checksum matching."""
     try:
         _unpack(path, "")
@@ -103,7 +117,8 @@ def newest_intact(path, read):
             contents = read(previous)
         except CheckpointError:
             raise newest from None
-        return contents, f"{newest}; using the one before it, {previous}"
+        passed = f"{path} is missing" if not Path(path).exists() else str(newest)
+        return contents, f"{passed}; using the one before it, {previous}"
 
 
 def fill(template, arrays, path, needs):

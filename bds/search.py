@@ -262,8 +262,64 @@ def _read_log(path) -> runlog.Log:
 
 def logged_evaluations(path):
     """The evaluation records in the search log at `path`, in the order they were written
-    (none when there is no such file)."""
-    return [r for r in _read_log(path).records if r.get("event") == "evaluation"]
+    (none when there is no such file), checked as a resumed search checks them."""
+    records = _read_log(path).records
+    if not records:
+        return []
+    _check_start(path, records)
+    return list(_contents(path, records)[1].values())
+
+
+def _check_start(path, records):
+    if not records or records[0].get("event") != "start":
+        raise SearchError(f"{path}: not a search log (the first line must be the search's "
+                          "'start' record)")
+
+
+def _contents(path, records):
+    """The plans {first_index: (points, kinds)} and evaluations {index: record} of a log's
+    records after its header, each checked against the header's box; a SearchError naming the
+    record for one that does not fit."""
+    header = records[0]
+    try:
+        lower, upper = check_bounds(header.get("lower"), header.get("upper"))
+    except ValueError as error:
+        raise SearchError(f"{path}, record 1: {error}") from None
+    plans, evaluations, feature_size = {}, {}, None
+    for number, record in enumerate(records[1:], 2):
+        event = record.get("event")
+        if event == "plan":
+            problem = _check_plan(record, len(lower))
+        elif event == "evaluation":
+            problem = _check_evaluation(record, lower, upper, feature_size)
+        else:
+            problem = f"event {event!r} is unknown"
+        if problem:
+            raise SearchError(f"{path}, record {number}: the {event or 'record'}'s {problem}")
+        if event == "plan":
+            plans[record["first_index"]] = (record["points"], record["kinds"])
+        else:
+            feature_size = len(record["feature"])
+            evaluations[record["index"]] = record
+    return plans, evaluations
+
+
+KINDS = ("initial", "explore", "diverse", "random")
+
+
+def _check_plan(record, dim):
+    """What is wrong with a logged plan ("" when nothing): its first index, its points (lists
+    of `dim` numbers in the unit box) and their kinds."""
+    if not isinstance(record.get("first_index"), int) or record["first_index"] < 0:
+        return f"first_index {record.get('first_index')!r} is not a whole number ≥ 0"
+    points, kinds = record.get("points"), record.get("kinds")
+    if not (isinstance(points, list) and points
+            and all(_numbers(p, dim) and all(0 <= v <= 1 for v in p) for p in points)):
+        return f"points are not a list of points of {dim} numbers in the unit box"
+    if not (isinstance(kinds, list) and len(kinds) == len(points)
+            and all(k in KINDS for k in kinds)):
+        return f"kinds {kinds!r} are not one of {', '.join(KINDS)} per point"
+    return ""
 
 
 def _numbers(value, size=None):
@@ -305,13 +361,13 @@ class SearchLog:
     def _read(self):
         log = _read_log(self.path)
         if not log.records and (_START.startswith(log.torn) or log.torn.startswith(_START)):
-            # Empty, or a crash while the header was written: no evaluation to keep.
+            # Empty, or a crash while the header was written: no evaluation to keep, and the
+            # header is written again with the first record.
             self._set_aside(log, [])
+            self.path.unlink()
             return
         records = log.records
-        if not records or records[0].get("event") != "start":
-            raise SearchError(f"{self.path}: not a search log (the first line must be the "
-                              "search's 'start' record)")
+        _check_start(self.path, records)
         # A setting added after the log was written is taken to have had its default value.
         stored = {**_as_json(dataclasses.asdict(SearchSettings())),
                   **{key: value for key, value in records[0].items() if key != "event"}}
@@ -320,21 +376,7 @@ class SearchLog:
                 raise SearchError(f"{self.path}: this log belongs to a different search: its "
                                   f"{key} is {stored.get(key)!r}, the settings give {value!r}; "
                                   "use another log file or the same settings")
-        lower, upper = np.asarray(self.header["lower"]), np.asarray(self.header["upper"])
-        feature_size = None
-        for number, record in enumerate(records[1:], 2):
-            if record.get("event") == "plan":
-                self.plans[record["first_index"]] = (record["points"], record["kinds"])
-            elif record.get("event") == "evaluation":
-                problem = _check_evaluation(record, lower, upper, feature_size)
-                if problem:
-                    raise SearchError(f"{self.path}, record {number}: the evaluation's "
-                                      f"{problem}")
-                feature_size = len(record["feature"])
-                self.evaluations[record["index"]] = record
-            else:
-                raise SearchError(f"{self.path}, record {number}: unknown event "
-                                  f"{record.get('event')!r}")
+        self.plans, self.evaluations = _contents(self.path, records)
         self.started = True
         self._set_aside(log, records)
 
@@ -344,7 +386,7 @@ class SearchLog:
             return
         note = runlog.repair(log, records)
         if note:
-            warnings.warn(note, RuntimeWarning, stacklevel=4)
+            warnings.warn(note, runlog.LogWarning, stacklevel=4)
 
     def _append(self, record):
         """Append `record` (after the header, when the file has none yet), synced to disk."""
@@ -354,7 +396,11 @@ class SearchLog:
         if not self.started:
             write_text_atomic(self.path, runlog.format_record({"event": "start", **self.header}))
             self.started = self.created = True
-        runlog.append(self.path, record, sync=True)
+        try:
+            runlog.append(self.path, record, sync=True)
+        except ValueError as error:         # a NaN point, which JSON cannot hold
+            raise SearchError(f"{self.path}: cannot log the {record['event']} ({error}): "
+                              f"{record}") from None
 
     def discard_if_empty(self):
         """Remove the log this search created when it holds no evaluation (only its header and

@@ -17,7 +17,7 @@
         the figures of a training run into --out (default docs/): its curriculum curve
         (`takeoff plot`), the deterministic jump as a filmstrip with bar and mat, the peak pose
         from two views (along the bar and facing it), and its summary with the crossing
-        feature as NAME.json
+        feature as NAME.json (into --out, default benchmarks/results/)
 
 Learning runs are `takeoff train configs/highjump.toml` (docs/benchmarks.md gives the commands
 and the figures). Needs the reference data (TAKEOFF_DATA, default ../shared/data) and a trained
@@ -179,7 +179,7 @@ def report(args):
     summary, env, poses = train_commands.evaluate(run, episodes=args.episodes, data_dir=data,
                                                   echo=lambda _: None)
     train_commands.plot(run, quiet=True)
-    out = Path(args.out)
+    out = Path(args.out or DOCS)
     out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(run / train_commands.CURVE, out / f"{args.name}_curve.png")
     z = summary["episode/difficulty"]
@@ -205,7 +205,8 @@ def report(args):
     result = {"machine": machine_info(), "run": str(run), "iterations": records[-1]["iteration"],
               "samples": records[-1]["samples"], "minutes": records[-1]["seconds"] / 60,
               "evaluation": summary}
-    write_text_atomic(out / f"{args.name}.json", json.dumps(result, indent=2) + "\n")
+    write_text_atomic(Path(args.out or RESULTS) / f"{args.name}.json",
+                      json.dumps(result, indent=2) + "\n")
     print(json.dumps(result["evaluation"], indent=2))
 
 
@@ -233,8 +234,8 @@ def main():
     p = sub.add_parser("report")
     p.add_argument("run_dir")
     p.add_argument("--name", required=True)
-    p.add_argument("--out", default=str(DOCS), help="folder of the figures and the JSON "
-                                                     "(default docs/)")
+    p.add_argument("--out", help="folder of the figures and the JSON (default: the figures "
+                                 "in docs/, the JSON in benchmarks/results/)")
     p.add_argument("--episodes", type=int, default=16)
     p.set_defaults(run=report)
     args = parser.parse_args()

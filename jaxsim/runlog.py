@@ -20,6 +20,7 @@ hand that way is kept in `<log>.torn` for the user to look at.
 """
 
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,13 +35,24 @@ class LogError(ValueError):
     """A log line that is not a record: the message names the file and the line."""
 
 
+class LogWarning(UserWarning):
+    """A log that was not intact and has been set right; the message says what was done."""
+
+
 def _refuse_constant(name):
     raise ValueError(f"{name} is not a finite number")
 
 
+def _finite(text):
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text} is not a finite number")
+    return value
+
+
 def parse_record(line: str) -> dict:
     """One log line as a dict; a ValueError when it is not a JSON object of finite numbers."""
-    record = json.loads(line, parse_constant=_refuse_constant)
+    record = json.loads(line, parse_constant=_refuse_constant, parse_float=_finite)
     if not isinstance(record, dict):
         raise ValueError("not a JSON object")
     return record

@@ -160,7 +160,7 @@ def step(model: Model, world: World, state: State, target, dt, method: str = "ma
 
 
 def simulate(model: Model, world: World, state: State, targets, dt, method: str = "maba",
-             substeps: int = 1, target_velocities=None):
+             substeps: int = 1, target_velocities=None, check_result: bool = True):
     """Run len(targets) control steps, each holding its target pose (and target velocity, if
     `target_velocities` (T, nv) is given) for `substeps` steps of dt.
 
@@ -172,14 +172,16 @@ def simulate(model: Model, world: World, state: State, targets, dt, method: str 
     velocity, or a dt that is not a finite number > 0, raises `SimulationError` naming the
     control steps and joints. Called outside `jit`, a trajectory that turns non-finite from
     finite inputs raises `SimulationError` saying at which control step and in which joints it
-    first did; inside `jit`, check `first_non_finite(trajectory)` (-1 when all is finite).
+    first did (`check_result=False` returns it as it is, for studies of where a method
+    diverges); inside `jit`, check `first_non_finite(trajectory)` (-1 when all is finite).
     """
     check_layout(model, "targets", targets, "nq", leading="T")
     if target_velocities is not None:
         check_layout(model, "target_velocities", target_velocities, "nv", leading="T")
     _check_inputs(model, "state", state, targets, dt, target_velocities, ())
     result = _simulate(model, world, state, targets, dt, method, substeps, target_velocities)
-    _check_trajectory(model, "simulate", result[1], dt, substeps)
+    if check_result:
+        _check_trajectory(model, "simulate", result[1], dt, substeps)
     return result
 
 
@@ -263,7 +265,8 @@ def batched(fun, method: str, batch_last=None, in_axes=0):
 
 
 def simulate_batch(model: Model, world: World, states: State, targets, dt, method: str = "maba",
-                   substeps: int = 1, target_velocities=None, batch_last=None):
+                   substeps: int = 1, target_velocities=None, batch_last=None,
+                   check_result: bool = True):
     """`simulate` for a batch of characters: states with a leading batch axis; targets (T, nq)
     shared by all or (batch, T, nq), target velocities likewise (T, nv) or (batch, T, nv); one
     model and world for all. Outputs carry the batch on axis 0.
@@ -286,7 +289,8 @@ def simulate_batch(model: Model, world: World, states: State, targets, dt, metho
     _check_inputs(model, "states", states, targets, dt, target_velocities, ("in batch member",))
     result = _simulate_batch(model, world, states, targets, dt, method, substeps,
                              target_velocities, batch_last)
-    _check_trajectory(model, "simulate_batch", result[1], dt, substeps)
+    if check_result:
+        _check_trajectory(model, "simulate_batch", result[1], dt, substeps)
     return result
 
 

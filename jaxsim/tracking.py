@@ -47,13 +47,14 @@ def reference_targets(clip: motion.Clip, dt, n_steps: int):
 
 
 def track(model: Model, world: World, clip: motion.Clip, dt, n_steps: int,
-          method: str = "maba"):
+          method: str = "maba", check_result: bool = True):
     """Simulate n_steps of tracking; returns the states after each step (leading time axis).
 
-    `model` should carry tracking gains (`tracking_model`)."""
+    `model` should carry tracking gains (`tracking_model`); `check_result` as in `simulate`
+    (False for a stability study, which records divergence instead of raising)."""
     poses, velocities = reference_targets(clip, dt, n_steps)
     _, trajectory = simulate(model, world, initial_state(model, world, clip), poses, dt, method,
-                             target_velocities=velocities)
+                             target_velocities=velocities, check_result=check_result)
     return trajectory
 
 

@@ -13,6 +13,7 @@ from agents.commands.cli import main
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.optimize import direct, maximize_lbfgs
 from bds.search import SearchError, SearchSettings, search
+from jaxsim.runlog import LogWarning
 from test_cli import run as run_cli
 
 # Standard global-optimisation test functions (Dixon & Szegő 1978; minima as in Jones et al. 1993).
@@ -119,7 +120,7 @@ def test_resume_after_a_crash_evaluates_nothing_twice(tmp_path):
     with open(log, "a") as f:
         f.write('{"event": "evaluation", "ind')
     first_part = len(evaluated)
-    with pytest.warns(RuntimeWarning, match=r"its last line was cut off .*search\.jsonl\.torn"):
+    with pytest.warns(LogWarning, match=r"its last line was cut off .*search\.jsonl\.torn"):
         result = search(crashing, [0, 0], [2, 1], settings, log=log)
     assert (tmp_path / "search.jsonl.torn").read_text() == '{"event": "evaluation", "ind\n'
     resumed = evaluated[first_part:]
@@ -288,7 +289,7 @@ def test_a_log_cut_off_in_its_header_starts_afresh(tmp_path, cut):
     log.write_text(cut)
     settings = SearchSettings(strategy="random", budget=2)
     if cut:                         # the cut-off text is set aside, and the user told so
-        with pytest.warns(RuntimeWarning, match="its last line was cut off"):
+        with pytest.warns(LogWarning, match="its last line was cut off"):
             result = search(lambda x: x[0], [0], [1], settings, log=log)
         assert (tmp_path / "search.jsonl.torn").read_text() == cut + "\n"
     else:
@@ -525,3 +526,13 @@ def test_takeoff_search_refuses_a_directory_a_nan_setting_and_zero_workers(tmp_p
         main(["search", str(config), "--set", "landscape.noise=nan"])
     code, _, err = run_cli(["search", str(config), "--workers", "0"], capsys)
     assert code == 2 and "--workers: must be a whole number ≥ 1" in err
+
+
+def test_takeoff_search_names_a_damaged_evaluation_before_using_it(tmp_path, capsys):
+    config = write_config(tmp_path, RANDOM_SEARCH)
+    out_dir = tmp_path / "run"
+    assert run_cli(["search", str(config), "--out", str(out_dir)], capsys)[0] == 0
+    log = out_dir / "evaluations.jsonl"
+    log.write_text(log.read_text().replace('"x": [', '"x": ["left", ', 1))
+    with pytest.raises(SystemExit, match=r"evaluations\.jsonl, record \d+: the evaluation's x "):
+        main(["search", str(config), "--out", str(out_dir), "--set", "search.budget=6"])

@@ -277,6 +277,9 @@ def run_file_cases():
         replace_nth(r'\{"iteration": 2', '[{"iteration": 2'),
         replace_nth(r'"iteration": 3', '"iteration": "three"'),
         replace_nth(r'\n', '\n\x00\x01garbage\n', 1), binary,
+        replace_nth(r'"seconds": 1\.0', '"seconds": 1e999'),
+        replace_nth(r'"seconds": 1\.5, ', ''),
+        replace_nth(r'"samples": 64', '"samples": -64'),
     ], load_metrics)
     cases += file_cases("search log", build_search_log, [
         flip(0.4, 16), binary,
@@ -289,6 +292,10 @@ def run_file_cases():
         replace_nth(r'"event": "plan"', '"event": "lunch"'),
         replace_nth(r'"event": "start"', '"event": "begin"'),
         replace_nth(r'"seed": 0', '"seed": 3'),
+        replace_nth(r'"first_index": 0', '"first_index": "zero"'),
+        replace_nth(r'"kinds": \["random"', '"kinds": ["lucky"'),
+        replace_nth(r'"points": \[', '"points": [], "was": ['),
+        replace_nth(r'"points": \[\[', '"points": [[7.0, '),
     ], load_search_log)
     return cases
 

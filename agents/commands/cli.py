@@ -231,8 +231,17 @@ def build_parser():
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
-    """Warnings (a log set aside, …) as one line for the user, without a source location."""
-    print(f"takeoff: warning: {message}", file=file or sys.stderr)
+    """A log set right (`jaxsim.runlog.LogWarning`) as one line for the user, without a source
+    location; any other warning as Python shows it."""
+    from jaxsim.runlog import LogWarning
+
+    if issubclass(category, LogWarning):
+        print(f"takeoff: warning: {message}", file=file or sys.stderr)
+    else:
+        _PYTHON_SHOWWARNING(message, category, filename, lineno, file, line)
+
+
+_PYTHON_SHOWWARNING = warnings.showwarning
 
 
 def main(argv=None):

@@ -166,7 +166,8 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
         source = config_path
         config = load_config(config_path, overrides)
         run_dir = config_io.run_directory(
-            config_path, out_dir, lambda d: (d / trainer_lib.CHECKPOINT).exists(),
+            config_path, out_dir, lambda d: any(f.exists() for f in (
+                d / trainer_lib.CHECKPOINT, previous_path(d / trainer_lib.CHECKPOINT))),
             "resume it with `takeoff train --resume {run_dir}` or pick another --out")
     trainer = _trainer_for(config, source, data_dir)
     state_bytes, sample_bytes = trainer.footprint()
@@ -204,7 +205,14 @@ def _plot_after_run(run_dir, echo):
 
 
 def _available_memory() -> int | None:
-    """The bytes of memory available to a new program (Linux's MemAvailable; None elsewhere)."""
+    """The bytes of memory available to the run: the accelerator's free memory, or on the CPU
+    Linux's MemAvailable (None where neither is known)."""
+    device = jax.devices()[0]
+    if device.platform != "cpu":
+        stats = device.memory_stats() or {}
+        if "bytes_limit" in stats:
+            return stats["bytes_limit"] - stats.get("bytes_in_use", 0)
+        return None
     try:
         with open("/proc/meminfo", encoding="ascii") as f:
             for line in f:
@@ -221,9 +229,9 @@ def _check_memory(need: int, source, what: str):
     available = _available_memory()
     if available is not None and need > available:
         raise config_io.ConfigError(
-            f"{source}: {what} needs at least {need / 1e9:,.1f} GB of memory (the environments' "
-            f"states and the samples of one rollout), and this machine has "
-            f"{available / 1e9:,.1f} GB available; make it smaller")
+            f"{source}: {what} needs at least {need / 1e9:,.1f} GB of memory (the training "
+            f"state and the samples of one rollout), and {available / 1e9:,.1f} GB is "
+            "available")
 
 
 def _resume_overrides(config: TrainConfig, overrides, source) -> TrainConfig:

@@ -40,14 +40,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.checkpoint import (CheckpointError, fill, newest_intact, read_msgpack,
-                               write_msgpack)
+from agents.checkpoint import (CheckpointError, fill, intact, newest_intact, previous_path,
+                               read_msgpack, write_msgpack)
 from agents.rl import curriculum as curriculum_lib
 from agents.rl import rollout as rollout_lib
 from agents.rl.networks import sigma_at
 from agents.rl.ppo import PPOSettings, PPOState, RunningNorm, make_ppo
 from jaxsim import runlog, xla_options
-from jaxsim.atomic import atomic_path
 
 CHECKPOINT = "checkpoint.msgpack"
 METRICS = "metrics.jsonl"
@@ -198,11 +197,14 @@ class Trainer:
         loops run faster (docs/benchmarks.md, "The jump tasks: training throughput"). The
         rollout is compiled once per static key of the curriculum."""
         key = self._static_key(state.curriculum)
-        if key not in self._compiled:
+        collect = self._compiled.get(key)
+        if collect is None:
             rollout = self._rollout_of(self.env_for(state.curriculum))
-            self._compiled[key] = jax.jit(functools.partial(self._collect, rollout),
-                                          compiler_options=xla_options.simulation_options())
-        return self._learn_compiled(state, self._compiled[key](state))
+            collect = jax.jit(functools.partial(self._collect, rollout),
+                              compiler_options=xla_options.simulation_options())
+        result = self._learn_compiled(state, collect(state))
+        self._compiled[key] = collect        # known compiled once a call of it has returned
+        return result
 
     def _collect(self, rollout, state: TrainState):
         """The rollout of an iteration, from the state's key."""
@@ -270,7 +272,7 @@ def save_checkpoint(state: TrainState, run_dir):
     try:
         write_msgpack(path, leaves)
     except OSError as error:
-        kept = " (the checkpoint before it is kept)" if path.exists() else ""
+        kept = next((f" ({f} is kept)" for f in (path, previous_path(path)) if intact(f)), "")
         raise CheckpointError(f"{path}: could not be written ({error.strerror or error})"
                               f"{kept}") from None
 
@@ -410,10 +412,14 @@ def read_metrics(run_dir) -> list[dict]:
 
 
 def _check_iterations(log: runlog.Log):
+    """A LogError naming the record unless every record has the whole numbers `iteration` and
+    `samples` and the number `seconds`, none below 0 (what resuming and plotting read)."""
     for record in log.records:
-        if not isinstance(record.get("iteration"), int):
-            raise runlog.LogError(f"{log.path}: the record {json.dumps(record)[:80]} has no "
-                                  "iteration number")
+        for key, kinds in (("iteration", int), ("samples", int), ("seconds", (int, float))):
+            value = record.get(key)
+            if not isinstance(value, kinds) or isinstance(value, bool) or value < 0:
+                raise runlog.LogError(f"{log.path}: the record {json.dumps(record)[:80]} has "
+                                      f"no {key} (a number ≥ 0)")
 
 
 def trim_metrics(run_dir, iterations: int, echo=print):
@@ -421,6 +427,9 @@ def trim_metrics(run_dir, iterations: int, echo=print):
     last checkpoint), so a resumed run's log has each iteration once; 0 empties it. A torn last
     line is set aside in `metrics.jsonl.torn`, and iterations the checkpoint has done but the
     log has no record of (a log cut short or deleted) are named: both said through `echo`."""
+    if iterations == 0:                # nothing counts: whatever the log held is not this run's
+        runlog.repair(runlog.Log(Path(run_dir) / METRICS), [])
+        return
     log = runlog.read(Path(run_dir) / METRICS)
     _check_iterations(log)
     kept = [r for r in log.records if r["iteration"] <= iterations]
