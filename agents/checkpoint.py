@@ -98,7 +98,8 @@ def _unpack(path, what) -> bytes:
     if not (isinstance(stored, dict) and stored.get("format") == FORMAT):
         return data
     payload = stored.get("payload")
-    if not isinstance(payload, bytes) or hashlib.sha256(payload).hexdigest() != stored.get("sha256"):
+    checksum = hashlib.sha256(payload).hexdigest() if isinstance(payload, bytes) else None
+    if checksum is None or checksum != stored.get("sha256"):
         raise CheckpointError(f"{path}: damaged: its contents do not match their checksum")
     return payload
 

@@ -9,7 +9,6 @@ All functions act on one character; batch with `jax.vmap`, or faster with `simul
 """
 
 import functools
-from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -284,7 +283,7 @@ def simulate_batch(model: Model, world: World, states: State, targets, dt, metho
                                  ("target_velocities", target_velocities, "nv")):
         if values is not None:          # (T, n), or (batch, T, n): checked as one member's
             shape = np.shape(values)
-            member = SimpleNamespace(shape=shape[1:] if len(shape) == 3 else shape)
+            member = jax.ShapeDtypeStruct(shape[1:] if len(shape) == 3 else shape, float)
             check_layout(model, name, member, layout, leading="T")
     _check_inputs(model, "states", states, targets, dt, target_velocities, ("in batch member",))
     result = _simulate_batch(model, world, states, targets, dt, method, substeps,

@@ -302,7 +302,8 @@ def run_file_cases():
 
 # Configs: every key of every config in configs/, given a value it must refuse.
 
-CONFIG_SCHEMAS = {"pvae.toml": pvae.PVAEConfig, "search_landscape.toml": strategy_search.SearchConfig}
+CONFIG_SCHEMAS = {"pvae.toml": pvae.PVAEConfig,
+                  "search_landscape.toml": strategy_search.SearchConfig}
 
 
 def config_loader(name):

@@ -17,7 +17,8 @@ ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
 
 # Python blocks, smaller: (what the README says, what the test runs)
-PYTHON_SMALLER = [("4096", "16"), ("(600, 1)", "(30, 1)"), ("1600", "60"), ("budget=20", "budget=6")]
+PYTHON_SMALLER = [("4096", "16"), ("(600, 1)", "(30, 1)"), ("1600", "60"),
+                  ("budget=20", "budget=6")]
 SMALL_RUN = ["--set", "run.iterations=1", "--set", "run.envs=8", "--set",
              "run.steps_per_iteration=8", "--set", "ppo.minibatch_size=32",
              "--set", "ppo.hidden=[16, 16]"]

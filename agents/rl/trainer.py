@@ -22,7 +22,8 @@ The Python loop in `run` only logs (`metrics.jsonl`, one line per iteration, rea
 policy of `jaxsim.runlog`), shows progress (saying when it compiles, and leaving compile time out
 of the time it estimates), checkpoints atomically with a checksum every `checkpoint_every`
 iterations and at the end, keeping the one before (`agents.checkpoint`: a damaged checkpoint is
-passed over for it), and on Ctrl-C saves a checkpoint before it stops. Each iteration also reports one flag, computed in the compiled
+passed over for it), and on Ctrl-C saves a checkpoint before it stops. Each iteration also
+reports one flag, computed in the compiled
 function, that its rewards, observation statistics, losses and network parameters are all
 finite; when they are not, the loop stops with a `TrainingError` naming the iteration and the
 quantities, and saves nothing, so the last checkpoint (of finite weights) is kept.
@@ -352,8 +353,8 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
             if compiling:
                 echo(f"compiled, and ran the iteration, in {now - last_time:.1f} s")
             else:
-                timed_seconds, timed_iterations = timed_seconds + now - last_time, \
-                    timed_iterations + 1
+                timed_seconds += now - last_time
+                timed_iterations += 1
             record = {"iteration": completed_iterations(new_state),
                       "samples": int(new_state.ppo.samples),
                       "samples_per_second": settings.samples_per_iteration / (now - last_time),
