@@ -45,7 +45,7 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)      # float64 runs; every model/world is cast explicitly
 
-from jaxsim import (allocator, characters, kinematics, motion, simulation,  # noqa: E402
+from jaxsim import (allocator, batch_last, characters, kinematics, motion, simulation,  # noqa: E402
                     tracking, xla_options)
 from jaxsim.model import rest_pose  # noqa: E402
 from jaxsim.world import make_world  # noqa: E402
@@ -263,11 +263,11 @@ def speed(args):
 # contacts
 
 
-def contact_scene(steps, torque_limits=False, batch_last=None):
+def contact_scene(steps, torque_limits=False, batch_last=None, chunk=None):
     """The contact benchmark's setup: the humanoid (joints held by SPD, root free) dropped from
     5 cm onto the ground, maba, contacts and joint limits, 600 Hz, float32. Returns the model, its
     initial state and `rollout(states)`, `steps` steps of a batch of such states
-    (`simulation.simulate_batch`, its `batch_last` as given)."""
+    (`simulation.simulate_batch`, its `batch_last` and `chunk` as given)."""
     model = tracking.tracking_model(characters.humanoid(), root_gains=(0.0, 0.0))
     world = make_world(torque_limits=torque_limits)
     low, _ = characters.vertical_extent(model)
@@ -276,7 +276,7 @@ def contact_scene(steps, torque_limits=False, batch_last=None):
 
     def rollout(states):
         return simulation.simulate_batch(model, world, states, targets, 1 / 600,
-                                         batch_last=batch_last)[0]
+                                         batch_last=batch_last, chunk=chunk)[0]
     return model, simulation.init_state(model, world, q0), rollout
 
 
@@ -331,18 +331,24 @@ def time_mujoco(mj_model, state, batch, steps, repeats):
 
 
 def contacts(args):
-    model, state, rollout = contact_scene(args.steps, args.torque_limits, args.batch_layout)
+    model, state, _ = contact_scene(args.steps, args.torque_limits, args.batch_layout)
     if args.mujoco:
         import mujoco
         mj_model, mj_state, mj_contacts = mujoco_scene(model, state.q, 1 / 600)
     rows = []
     for batch in args.batch:
         states = batched_states(state, batch)
-        compile_s, run_s = _timed(rollout, (states,), args.repeats, "maba")
-        rows.append({"engine": "takeoff maba", "layout": layout("maba", args.batch_layout),
-                     "batch": batch, "devices": jax.device_count(),
-                     "steps": args.steps, "compile_s": compile_s,
-                     "seconds": run_s, "steps_per_s": batch * args.steps / run_s})
+        for chunk in args.chunk:
+            piece = batch if chunk == "whole" else (chunk or None)
+            rollout = contact_scene(args.steps, args.torque_limits, args.batch_layout, piece)[2]
+            compile_s, run_s = _timed(rollout, (states,), args.repeats, "maba")
+            rows.append({"engine": "takeoff maba", "layout": layout("maba", args.batch_layout),
+                         "batch": batch, "chunk": chunk if chunk else
+                         batch_last.default_chunk(), "devices": jax.device_count(),
+                         "steps": args.steps, "compile_s": compile_s,
+                         "seconds": run_s, "steps_per_s": batch * args.steps / run_s})
+            print(f"contacts batch {batch} chunk {rows[-1]['chunk']} takeoff maba: "
+                  f"{rows[-1]['steps_per_s']:.0f} steps/s", file=sys.stderr, flush=True)
         if args.mujoco:
             run_s, threads, sink = time_mujoco(mj_model, mj_state, batch, args.steps,
                                                args.repeats)
@@ -350,14 +356,14 @@ def contacts(args):
                          "threads": threads, "steps": args.steps, "seconds": run_s,
                          "steps_per_s": batch * args.steps / run_s,
                          "contacts_at_start": mj_contacts, "root_height_change_m": sink})
-        for r in rows[-2 if args.mujoco else -1:]:
-            print(f"contacts batch {batch} {r['engine']}: {r['steps_per_s']:.0f} steps/s",
-                  file=sys.stderr, flush=True)
+            print(f"contacts batch {batch} {rows[-1]['engine']}: "
+                  f"{rows[-1]['steps_per_s']:.0f} steps/s", file=sys.stderr, flush=True)
     table = markdown_table(
-        ["engine", "layout", "batch", "devices / threads", "character-steps/s", "compile s"],
-        [[r["engine"], r.get("layout", "–"), r["batch"], r.get("devices", r.get("threads")),
-          f"{r['steps_per_s']:,.0f}", f"{r['compile_s']:.1f}" if "compile_s" in r else "–"]
-         for r in rows])
+        ["engine", "layout", "batch", "chunk", "devices / threads", "character-steps/s",
+         "compile s"],
+        [[r["engine"], r.get("layout", "–"), r["batch"], r.get("chunk", "–"),
+          r.get("devices", r.get("threads")), f"{r['steps_per_s']:,.0f}",
+          f"{r['compile_s']:.1f}" if "compile_s" in r else "–"] for r in rows])
     limits = ", torque limits (two-pass)" if args.torque_limits else ""
     return rows, (f"Humanoid on the ground, 600 Hz, maba, contacts and joint limits{limits}, "
                   f"float32\n\n{table}\n")
@@ -412,9 +418,25 @@ def parse_args(argv=None):
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--mujoco", action="store_true",
                    help="also time MuJoCo stepping the same humanoid (mujoco_scene), for scale")
+    p.add_argument("--chunk", nargs="+", type=_chunk_size, default=[0],
+                   help="members simulated at once (jaxsim.batch_last.vmap): a number, 0 for "
+                        "the default, or 'whole' for the batch in one piece; each is timed")
     p = sub.add_parser("filmstrip")
     p.add_argument("--out", type=Path, default=Path("docs/cartwheel_tracking.png"))
     return parser.parse_args(argv)
+
+
+def _chunk_size(text):
+    """--chunk N|0|whole → a chunk size, 0 for the default, or "whole"."""
+    if text == "whole":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"--chunk is a whole number ≥ 0 or 'whole', not {text!r}")
+    return value
 
 
 def layout(method, batch_last):

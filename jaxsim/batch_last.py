@@ -18,6 +18,8 @@ Values that do not depend on the batch (the model, constants) stay unbatched, as
 The result is an ordinary JAX computation: it jits, differentiates and nests like any other.
 """
 
+import os
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -380,11 +382,17 @@ _RULES = {
 }
 
 
-def vmap(fun, in_axes=0):
-    """`jax.vmap(fun, in_axes)` computed with the batch innermost.
+def vmap(fun, in_axes=0, chunk=None):
+    """`jax.vmap(fun, in_axes)` computed with the batch innermost, `chunk` members at a time.
 
     `in_axes` is 0 or None, or a tuple with one of them per positional argument (applying to the
     whole argument). Outputs carry the batch on axis 0, as with `jax.vmap`.
+
+    A batch larger than `chunk` is computed in pieces of `chunk` members, one after another
+    under `lax.map` (the last piece padded with copies of the last member, whose results are
+    dropped), so that the arrays one operation works on stay in the CPU's cache however large
+    the batch (docs/benchmarks.md, "Chunked batches"). `chunk` None is `default_chunk()`; pass
+    the batch size, or more, to compute it in one piece. The results are the same either way.
     """
     def batched(*args):
         axes = in_axes if isinstance(in_axes, (tuple, list)) else (in_axes,) * len(args)
@@ -415,9 +423,55 @@ def vmap(fun, in_axes=0):
             return fun(*rebuilt)
 
         closed, out_shape = jax.make_jaxpr(one_example, return_shape=True)(*examples)
-        values = [jnp.moveaxis(v, 0, -1) if f else v for v, f in zip(leaves, flags)]
-        outs, out_flags = _Evaluator(size).run(closed, values, flags)
-        outs = [jnp.moveaxis(v, -1, 0) if f else jnp.broadcast_to(v, (size,) + v.shape)
-                for v, f in zip(outs, out_flags)]
-        return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(out_shape), outs)
+        out_tree = jax.tree_util.tree_structure(out_shape)
+        piece = default_chunk() if chunk is None else _check_chunk(chunk)
+
+        def evaluate(batched_leaves, count):
+            """The outputs, batch first, for `count` members (the batched leaves' axis 0)."""
+            it = iter(batched_leaves)
+            values = [jnp.moveaxis(next(it), 0, -1) if f else v for v, f in zip(leaves, flags)]
+            outs, out_flags = _Evaluator(count).run(closed, values, flags)
+            return [jnp.moveaxis(v, -1, 0) if f else jnp.broadcast_to(v, (count,) + v.shape)
+                    for v, f in zip(outs, out_flags)]
+
+        batched_leaves = [v for v, f in zip(leaves, flags) if f]
+        if size <= piece:
+            return jax.tree_util.tree_unflatten(out_tree, evaluate(batched_leaves, size))
+        pieces = -(-size // piece)
+        padding = pieces * piece - size
+
+        def split(v):
+            if padding:
+                v = jnp.concatenate([v, jnp.repeat(v[-1:], padding, axis=0)])
+            return v.reshape(pieces, piece, *v.shape[1:])
+
+        outs = lax.map(lambda part: evaluate(part, piece), [split(v) for v in batched_leaves])
+        outs = [v.reshape(pieces * piece, *v.shape[2:])[:size] for v in outs]
+        return jax.tree_util.tree_unflatten(out_tree, outs)
     return batched
+
+
+# Members computed at once by `vmap` when its caller does not say: the humanoid's contact step
+# at batch 4096 runs fastest in pieces of this size on the CPUs measured (docs/benchmarks.md,
+# "Chunked batches"). The environment variable overrides it for every caller that does not say.
+DEFAULT_CHUNK = 256
+CHUNK_VARIABLE = "TAKEOFF_BATCH_CHUNK"
+
+
+def default_chunk() -> int:
+    """The members `vmap` computes at once by default: $TAKEOFF_BATCH_CHUNK if set, otherwise
+    `DEFAULT_CHUNK`."""
+    text = os.environ.get(CHUNK_VARIABLE, "").strip()
+    if not text:
+        return DEFAULT_CHUNK
+    try:
+        return _check_chunk(int(text))
+    except ValueError:
+        raise ValueError(f"{CHUNK_VARIABLE} must be a positive whole number of batch members; "
+                         f"got {text!r}") from None
+
+
+def _check_chunk(chunk) -> int:
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk must be a positive whole number of batch members; got {chunk!r}")
+    return int(chunk)

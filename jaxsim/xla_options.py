@@ -10,9 +10,11 @@ goes"). Three of XLA's CPU code-generation options change how well they run:
 - `xla_cpu_experimental_ynn_fusion_type`: which fusions XLA hands to the YNNPACK library. By
   default that includes elementwise fusions, which here are small and slower there; we keep
   only matrix products (`LIBRARY_FUSION_TYPE_DOT`).
-- `xla_cpu_prefer_vector_width`: 512-bit vectors, where the CPU has them (AVX-512); with the
-  batch innermost the loops run along the batch and fill them (about +10% on the contact step
-  at batch 4096). It is a preference, not a requirement: LLVM uses the widths a CPU has.
+- `xla_cpu_prefer_vector_width`: the widest vectors this CPU has (`vector_bits`: 512 bits
+  with AVX-512, 256 with AVX2, as /proc/cpuinfo lists its features); with the batch innermost
+  the loops run along the batch and fill them (512 against XLA's default 256 gave about +10%
+  on the contact step at batch 4096 on an AVX-512 Xeon). Where the features cannot be read,
+  the option is left out and XLA chooses.
 
 The figures, and the commands that measure them, are in docs/benchmarks.md ("XLA's CPU code
 generators" and "The batch innermost, by interpreting the program"). The options change how
@@ -35,16 +37,18 @@ import functools
 import inspect
 import os
 import warnings
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 from jax._src import core as jax_core
 
-SIMULATION_CPU_OPTIONS = {
+SIMULATION_CPU_OPTIONS = {          # and the vector width, by the CPU: see `cpu_options`
     "xla_cpu_use_fusion_emitters": False,
     "xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_DOT",
-    "xla_cpu_prefer_vector_width": 512,
 }
+# /proc/cpuinfo's feature flags, widest first, and the vector bits each gives.
+VECTOR_FEATURES = (("avx512f", 512), ("avx2", 256), ("avx", 256), ("sse2", 128), ("asimd", 128))
 OPT_OUT_VARIABLE = "TAKEOFF_XLA_DEFAULTS"
 # The methods compiled with the options: all but sparse (MABA, explicit PD followed by ABA, ABA,
 # and dense CRBA + Cholesky).
@@ -52,10 +56,35 @@ TUNED_METHODS = ("maba", "pd", "aba", "dense")
 
 
 def simulation_options() -> dict:
-    """The compiler options for a program that is mostly simulation: `SIMULATION_CPU_OPTIONS`
-    on the CPU backend when this jaxlib accepts them, otherwise (or when the environment sets
+    """The compiler options for a program that is mostly simulation: `cpu_options()` on the
+    CPU backend when this jaxlib accepts them, otherwise (or when the environment sets
     TAKEOFF_XLA_DEFAULTS=1) none. Decided once per process; each call returns a fresh dict."""
     return dict(_accepted_options())
+
+
+def cpu_options() -> dict:
+    """`SIMULATION_CPU_OPTIONS` with the vector width this CPU prefers (`vector_bits`), where
+    it is known."""
+    bits = vector_bits()
+    return {**SIMULATION_CPU_OPTIONS,
+            **({"xla_cpu_prefer_vector_width": bits} if bits else {})}
+
+
+def vector_bits(cpuinfo: str | None = None) -> int | None:
+    """The width in bits of the widest vector registers this CPU has, from the feature flags
+    of /proc/cpuinfo (or the text given): 512 with AVX-512, 256 with AVX2, …; None where
+    they cannot be read (not Linux) or list none of `VECTOR_FEATURES`."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return None
+    flags = set()
+    for line in cpuinfo.splitlines():
+        name, _, value = line.partition(":")
+        if name.strip() in ("flags", "Features"):      # x86, ARM
+            flags.update(value.split())
+    return next((bits for feature, bits in VECTOR_FEATURES if feature in flags), None)
 
 
 @functools.cache
@@ -63,13 +92,13 @@ def _accepted_options() -> dict:
     if os.environ.get(OPT_OUT_VARIABLE, "") not in ("", "0") or jax.default_backend() != "cpu":
         return {}
     try:
-        jax.jit(jnp.sin, compiler_options=SIMULATION_CPU_OPTIONS).lower(
-            jnp.zeros(2)).compile()
+        options = cpu_options()
+        jax.jit(jnp.sin, compiler_options=options).lower(jnp.zeros(2)).compile()
     except Exception as error:              # an unknown option is a runtime error from XLA
         warnings.warn(f"this jaxlib rejects the simulator's XLA options ({error}); "
                       "compiling with XLA's defaults", stacklevel=3)
         return {}
-    return dict(SIMULATION_CPU_OPTIONS)
+    return options
 
 
 def _at_top_level(args, kwargs) -> bool:

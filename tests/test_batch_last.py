@@ -178,3 +178,42 @@ def test_bad_arguments_are_refused_clearly():
         batch_last.vmap(jnp.add)(batched(2), jnp.ones((3, 2)))
     with pytest.raises(ValueError, match="2 entries for 1 arguments"):
         batch_last.vmap(jnp.sin, in_axes=(0, None))(batched(2))
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 4, 7, 40])     # pieces with padding, exact, one piece
+def test_a_batch_computed_in_chunks_gives_the_same_states(chunk):
+    """The contact rollout of 7 dropped humanoids, in pieces of `chunk` (the last padded when
+    they do not divide 7) against the whole batch at once and against jax.vmap, in float64."""
+    model, world, states, targets = dropped_humanoids(10, 7, height=0.0005, jitter=True)
+    whole = simulation.simulate_batch(model, world, states, targets, 1 / 600, chunk=7)
+    pieces = simulation.simulate_batch(model, world, states, targets, 1 / 600, chunk=chunk)
+    by_vmap = simulation.simulate_batch(model, world, states, targets, 1 / 600, batch_last=False)
+    assert bool(jnp.any(whole[1].touching))
+    for w, p, v in zip(jax.tree.leaves(whole), jax.tree.leaves(pieces),
+                       jax.tree.leaves(by_vmap)):
+        assert p.shape == w.shape
+        np.testing.assert_allclose(np.asarray(p), np.asarray(w), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(p), np.asarray(v), rtol=0, atol=1e-10)
+
+
+def test_chunks_keep_unbatched_outputs_gradients_and_the_default():
+    xs = batched(3)
+    for chunk in (2, 5):
+        got = batch_last.vmap(lambda x, c: (jnp.sin(x) * c, c), in_axes=(0, None),
+                              chunk=chunk)(xs, 2.0)
+        np.testing.assert_allclose(np.asarray(got[0]), np.sin(np.asarray(xs)) * 2, rtol=1e-15)
+        np.testing.assert_array_equal(np.asarray(got[1]), np.full(BATCH, 2.0))
+        grad = jax.grad(lambda v: batch_last.vmap(lambda x: jnp.sum(x**3), chunk=chunk)(v).sum())
+        np.testing.assert_allclose(np.asarray(grad(xs)), 3 * np.asarray(xs) ** 2, rtol=1e-14)
+    assert batch_last.default_chunk() == batch_last.DEFAULT_CHUNK
+
+
+def test_a_bad_chunk_is_refused_clearly(monkeypatch):
+    for chunk in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match="chunk must be a positive whole number"):
+            batch_last.vmap(jnp.sin, chunk=chunk)(batched(2))
+    monkeypatch.setenv(batch_last.CHUNK_VARIABLE, "many")
+    with pytest.raises(ValueError, match="TAKEOFF_BATCH_CHUNK must be .* got 'many'"):
+        batch_last.default_chunk()
+    monkeypatch.setenv(batch_last.CHUNK_VARIABLE, "64")
+    assert batch_last.default_chunk() == 64

@@ -19,7 +19,7 @@ def test_the_options_leave_a_contact_rollout_unchanged():
     if jax.default_backend() == "cpu" and not os.environ.get(xla_options.OPT_OUT_VARIABLE):
         # The comparison means something only where the options are in use. The jaxlib that
         # CI installs accepts them; one that drops them should fail here, not go unnoticed.
-        assert options == xla_options.SIMULATION_CPU_OPTIONS
+        assert options == xla_options.cpu_options()
     model, world, states, targets = dropped_humanoids(120, 2, height=0.05)
 
     def final_q(states):       # simulate inside this jit: the outer program's options apply
@@ -82,3 +82,15 @@ def test_options_this_jaxlib_refuses_are_dropped_with_a_warning(monkeypatch):
         pytest.skip("the options are only tried on the CPU backend")
     with pytest.warns(UserWarning, match="rejects the simulator's XLA options"):
         assert xla_options._accepted_options.__wrapped__() == {}
+
+
+def test_the_vector_width_follows_the_cpus_features():
+    avx512 = "processor\t: 0\nflags\t\t: fpu sse2 avx avx2 avx512f avx512bw\n"
+    avx2 = "processor\t: 0\nflags\t\t: fpu sse2 avx fma avx2\n"
+    arm = "processor\t: 0\nFeatures\t: fp asimd evtstrm\n"
+    assert xla_options.vector_bits(avx512) == 512
+    assert xla_options.vector_bits(avx2) == 256
+    assert xla_options.vector_bits(arm) == 128
+    assert xla_options.vector_bits("processor\t: 0\n") is None
+    bits = xla_options.vector_bits()
+    assert xla_options.cpu_options().get("xla_cpu_prefer_vector_width") == bits

@@ -72,6 +72,7 @@ class RunSettings:
     progress_every: int = 1           # iterations between progress-line updates
     time_limit_minutes: float = 0.0   # stop (with a checkpoint) after this long; 0: no limit
     stop_difficulty: float = 0.0      # stop once the curriculum reaches it (z_freeze); 0: never
+    chunk: int = 0                    # environments simulated at once; 0: the measured default
 
     # What the computation (and the checkpoint) of a run is made of; the rest says how long
     # the loop runs and how often it reports.
@@ -82,7 +83,7 @@ class RunSettings:
                      "progress_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1; got {getattr(self, name)}")
-        for name in ("time_limit_minutes", "stop_difficulty"):
+        for name in ("time_limit_minutes", "stop_difficulty", "chunk"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be ≥ 0; got {getattr(self, name)}")
 
@@ -121,7 +122,8 @@ class Trainer:
 
     def _rollout_of(self, env):
         return rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
-                                        self.run_settings.steps_per_iteration, params_axis=0)
+                                        self.run_settings.steps_per_iteration, params_axis=0,
+                                        chunk=self.run_settings.chunk or None)
 
     def with_run_settings(self, run: RunSettings) -> "Trainer":
         """The same compiled trainer with other loop settings (iterations, checkpointing);
