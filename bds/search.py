@@ -10,11 +10,12 @@ evaluated. After each pick, the pending point is added to the GP with its poster
 fantasised outcome ("kriging believer", hyperparameters kept): the posterior variance there drops,
 so exploration moves elsewhere, and its believed feature joins the features the diversity
 acquisition must differ from. With `batch = 1` this is Algorithm 1. A round's evaluations may run at
-once (`workers`).
+once, in worker processes or on Ray (`jaxsim.executor`; `workers` or `executor` of `search`).
 
 Persistence: every event is appended to a JSONL log and synced to disk at once — a header with the
-settings, each round's planned points before they are evaluated, and each evaluation the moment it
-returns. `search` on an existing log resumes: finished evaluations are read back, not repeated; a
+settings, each round's planned points before they are evaluated, and each evaluation once it and
+the round's evaluations before it have returned (so the log is in pick order however many run at
+once). `search` on an existing log resumes: finished evaluations are read back, not repeated; a
 round that was planned but not finished evaluates only its missing points; the next decisions are
 computed from the same history. The log is read by the policy of `jaxsim.runlog`: a half-written
 last line (a crash during a write) is set aside in `<log>.torn` with a warning, a bad line or an
@@ -33,7 +34,6 @@ import json
 import math
 import time
 import warnings
-from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -43,6 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsim.executor import Executor, InProcess, LocalProcesses
 from bds import acquisition, gp
 from bds.optimize import direct, maximize_lbfgs
 from jaxsim import runlog
@@ -431,21 +432,42 @@ def _feature(value, index, x):
     return feature
 
 
+@dataclass(frozen=True, eq=False)
+class _Evaluation:
+    """One evaluation of the black box g at a point of the unit box, as a job for an executor:
+    its log record (index, kind, x in the box [lower, upper], feature, seconds). Picklable when
+    g is, so worker processes can run it."""
+    g: Callable
+    lower: np.ndarray
+    upper: np.ndarray
+
+    def __call__(self, index, point_unit, kind):
+        x = gp.from_unit(np.asarray(point_unit), self.lower, self.upper)
+        start = time.perf_counter()
+        feature = _feature(self.g(x), index, x)
+        return {"index": index, "kind": kind, "x": x.tolist(), "feature": feature.tolist(),
+                "seconds": time.perf_counter() - start}
+
+
 def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(), log=None,
-           workers=1, progress=None) -> SearchResult:
+           workers=1, progress=None, executor: Executor | None = None) -> SearchResult:
     """Run (or resume) a search for diverse features of the black box g over [lower, upper].
 
     g(x) takes a point (d,) of the box and returns its feature (a number or (m,) numbers).
-    `log` is the JSONL file to append to (None: keep nothing). `workers` > 1 evaluates a round's
-    points in that many threads at once. `progress(record)` is called after every evaluation
-    with its log record (index, kind, x, feature, seconds).
+    `log` is the JSONL file to append to (None: keep nothing). A round's points are evaluated
+    by `executor` (an `jaxsim.executor.Executor`, which the caller closes), else, with
+    `workers` > 1, in that many local worker processes (`LocalProcesses`: g must then be
+    picklable, a module-level function or object rather than a lambda or closure, and it runs
+    in another process, so it cannot change this one's state), else one after another in this
+    process. The log is the same however they run. `progress(record)` is called after every
+    evaluation is logged, with its log record (index, kind, x, feature, seconds).
 
     When g (or a check of its output) raises, or the search is interrupted, the evaluations of
-    the round that did finish are logged, those not yet started are dropped, and the error
+    the round that did finish are logged, those not finished are dropped, and the error
     propagates: a resumed search neither repeats nor loses an evaluation.
     """
-    if workers < 1:
-        raise ValueError(f"workers must be at least 1; got {workers}")
+    if executor is not None and workers != 1:
+        raise ValueError(f"give workers ({workers}) or an executor, not both")
     lower, upper = check_bounds(lower, upper)
     dim = lower.size
     header = _as_json({"lower": lower.tolist(), "upper": upper.tolist(),
@@ -457,13 +479,6 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
         x = gp.to_unit(np.array([r["x"] for r in done]).reshape(-1, dim), lower, upper)
         f = np.array([r["feature"] for r in done])
         return x, f
-
-    def evaluate(index, point_unit, kind):
-        x = gp.from_unit(np.asarray(point_unit), lower, upper)
-        start = time.perf_counter()
-        feature = _feature(g(x), index, x)
-        return {"index": index, "kind": kind, "x": x.tolist(), "feature": feature.tolist(),
-                "seconds": time.perf_counter() - start}
 
     def finish(record):
         earlier = next(iter(record_log.evaluations.values()), None)
@@ -480,44 +495,60 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
         if progress is not None:
             progress(record)
 
+    owned = executor is None
+    if owned:
+        executor = InProcess() if workers == 1 else LocalProcesses(workers)
     try:
-        _run_rounds(settings, record_log, history, evaluate, finish, dim, workers)
+        _run_rounds(settings, record_log, history, _Evaluation(g, lower, upper), finish, dim,
+                    executor)
     except BaseException:
         record_log.discard_if_empty()
         raise
+    finally:
+        if owned:
+            executor.close()
     done = [record_log.evaluations[i] for i in range(settings.budget)]
     return SearchResult(np.array([r["x"] for r in done]), np.array([r["feature"] for r in done]),
                         [r["kind"] for r in done])
 
 
-def _run_rounds(settings, record_log, history, evaluate, finish, dim, workers):
+def _run_rounds(settings, record_log, history, evaluate, finish, dim, executor):
     """Plan (or read back) each round's points and evaluate those the log does not hold."""
     first = 0
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        while first < settings.budget:
-            count = min(settings.batch, settings.budget - first)
-            if first in record_log.plans:       # perhaps planned under a larger budget
-                points, kinds = record_log.plans[first]
-                points, kinds = points[:count], kinds[:count]
-            else:
-                x_unit, features = history()
-                points, kinds = plan_round(settings, first, count, x_unit, features, dim)
-                points = [np.asarray(p).tolist() for p in points]
-                record_log.add_plan(first, points, kinds)
-            todo = [first + j for j in range(len(points))
-                    if first + j not in record_log.evaluations]
-            jobs = [pool.submit(evaluate, i, points[i - first], kinds[i - first]) for i in todo]
-            try:
-                for job in as_completed(jobs):
-                    finish(job.result())
-            except BaseException:
-                pool.shutdown(cancel_futures=True)      # waits for the running evaluations
-                for job in jobs:
-                    if not job.cancelled() and job.exception() is None \
-                            and job.result()["index"] not in record_log.evaluations:
-                        # The first error is the one raised; a record that fails too is
-                        # left for the resumed search to evaluate again.
-                        with contextlib.suppress(Exception):
-                            finish(job.result())
-                raise
-            first += len(points)
+    while first < settings.budget:
+        count = min(settings.batch, settings.budget - first)
+        if first in record_log.plans:       # perhaps planned under a larger budget
+            points, kinds = record_log.plans[first]
+            points, kinds = points[:count], kinds[:count]
+        else:
+            x_unit, features = history()
+            points, kinds = plan_round(settings, first, count, x_unit, features, dim)
+            points = [np.asarray(p).tolist() for p in points]
+            record_log.add_plan(first, points, kinds)
+        todo = [first + j for j in range(len(points))
+                if first + j not in record_log.evaluations]
+        _evaluate_round(executor, evaluate, finish,
+                        [(i, points[i - first], kinds[i - first]) for i in todo])
+        first += len(points)
+
+
+def _evaluate_round(executor, evaluate, finish, jobs):
+    """Evaluate the jobs (index, point, kind) of a round through the executor and pass each
+    record to `finish` in index order: each as soon as those before it are finished; on an
+    error, the records that did come back (still in index order) before the error propagates.
+    The first error is the one raised; a record that fails too is left for the resumed search
+    to evaluate again."""
+    waiting = [index for index, _, _ in jobs]          # indices not yet finished, in order
+    returned = {}
+    results = executor.map_unordered(evaluate, jobs)
+    try:
+        for j, record in results:
+            returned[jobs[j][0]] = record
+            while waiting and waiting[0] in returned:
+                finish(returned.pop(waiting.pop(0)))
+    except BaseException:
+        results.close()                                 # stops the evaluations still running
+        for index in sorted(returned):
+            with contextlib.suppress(Exception):
+                finish(returned[index])
+        raise

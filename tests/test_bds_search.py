@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import re
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from agents.commands.cli import main
+from jaxsim.executor import LocalProcesses
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.optimize import direct, maximize_lbfgs
 from bds.search import SearchError, SearchSettings, search
@@ -139,7 +141,7 @@ def test_batched_search_plans_distinct_points_per_round():
     g, calls = landscape_and_counter()
     settings = SearchSettings(budget=8, initial=4, explore=2, diverse=2, batch=4, seed=1,
                               **FAST)
-    result = search(g, [0, 0, 0], [1, 1, 1], settings, workers=4)
+    result = search(g, [0, 0, 0], [1, 1, 1], settings)
     second_round = result.x[4:]
     gaps = np.linalg.norm(second_round[:, None] - second_round[None], axis=-1)
     assert gaps[np.triu_indices(4, 1)].min() > 0.05     # the fantasies spread the round out
@@ -226,24 +228,79 @@ def crash_at_the_start_of_round_two(fault):
     return g, evaluated
 
 
-@pytest.mark.parametrize("fault, workers, raised, message", [
-    ("error", 1, RuntimeError, "simulated crash"),
-    ("error", 3, RuntimeError, "simulated crash"),
-    ("interrupt", 1, KeyboardInterrupt, "simulated crash"),
-    ("wrong length", 1, ValueError, "returned 2 numbers; earlier evaluations returned 1"),
+@pytest.mark.parametrize("fault, raised, message", [
+    ("error", RuntimeError, "simulated crash"),
+    ("interrupt", KeyboardInterrupt, "simulated crash"),
+    ("wrong length", ValueError, "returned 2 numbers; earlier evaluations returned 1"),
 ])
 def test_a_failure_inside_a_round_keeps_its_finished_evaluations_and_repeats_none(
-        tmp_path, fault, workers, raised, message):
+        tmp_path, fault, raised, message):
     log = tmp_path / "search.jsonl"
     settings = SearchSettings(strategy="random", budget=8, batch=4, seed=4)
     g, evaluated = crash_at_the_start_of_round_two(fault)
     with pytest.raises(raised, match=message):
-        search(g, [0, 0], [1, 1], settings, log=log, workers=workers)
+        search(g, [0, 0], [1, 1], settings, log=log)
     logged = [json.loads(line) for line in log.read_text().splitlines()]
     assert sum(r["event"] == "evaluation" for r in logged) == len(evaluated)
-    result = search(g, [0, 0], [1, 1], settings, log=log, workers=workers)
+    result = search(g, [0, 0], [1, 1], settings, log=log)
     assert len(evaluated) == len(set(evaluated)) == 8      # none twice, none lost
     assert {tuple(x) for x in result.x} == set(evaluated)
+
+
+@dataclasses.dataclass(frozen=True)
+class FailsOnceAt:
+    """x[0] as a black box worker processes can be sent: it raises once, at the point
+    `fail_at`, and notes each point it evaluated in folder/evaluated."""
+    folder: Path
+    fail_at: tuple
+
+    def __call__(self, x):
+        failed = self.folder / "failed"
+        if np.allclose(x, self.fail_at) and not failed.exists():
+            failed.touch()
+            raise RuntimeError("simulated crash")
+        with open(self.folder / "evaluated", "a") as evaluated:
+            evaluated.write(json.dumps(list(x)) + "\n")
+        return x[0]
+
+    def evaluated(self):
+        return [tuple(json.loads(line)) for line in (self.folder / "evaluated").open()]
+
+
+def test_a_failure_in_a_worker_process_keeps_the_rounds_finished_evaluations(tmp_path):
+    log = tmp_path / "search.jsonl"
+    settings = SearchSettings(strategy="random", budget=8, batch=4, seed=4)
+    second_round = search(lambda x: x[0], [0, 0], [1, 1], settings).x[4:]
+    g = FailsOnceAt(tmp_path, tuple(second_round[1]))
+    with LocalProcesses(2) as executor:
+        with pytest.raises(RuntimeError, match="simulated crash"):
+            search(g, [0, 0], [1, 1], settings, log=log, executor=executor)
+        logged = [json.loads(line) for line in log.read_text().splitlines()]
+        indices = [r["index"] for r in logged if r["event"] == "evaluation"]
+        assert len(indices) == len(g.evaluated()) and 5 not in indices
+        assert indices == sorted(indices)                     # in pick order, however they ran
+        result = search(g, [0, 0], [1, 1], settings, log=log, executor=executor)
+    assert len(g.evaluated()) == len(set(g.evaluated())) == 8      # none twice, none lost
+    assert {tuple(x) for x in result.x} == set(g.evaluated())
+
+
+def test_two_worker_processes_write_the_log_one_worker_writes(tmp_path):
+    settings = SearchSettings(budget=4, initial=2, explore=1, diverse=1, batch=2, seed=3, **FAST)
+    landscape = StrategyLandscape(LandscapeSettings(dim=2, strategies=4, seed=3))
+    logs = {}
+    for workers in (1, 2):
+        log = tmp_path / f"workers{workers}.jsonl"
+        search(landscape, [0, 0], [1, 1], settings, log=log, workers=workers)
+        logs[workers] = [json.loads(line) for line in log.read_text().splitlines()]
+    # The same records in the same order, with the same keys and types; only the time differs.
+    assert [[(key, type(value)) for key, value in record.items()] for record in logs[2]] == \
+        [[(key, type(value)) for key, value in record.items()] for record in logs[1]]
+    for record in logs[1] + logs[2]:
+        record.pop("seconds", None)
+    assert logs[2] == logs[1]
+    assert [r["index"] for r in logs[2] if r["event"] == "evaluation"] == [0, 1, 2, 3]
+    assert [r["kind"] for r in logs[2] if r["event"] == "evaluation"] == \
+        ["initial", "initial", "explore", "diverse"]
 
 
 def test_a_resumed_search_with_a_smaller_budget_stops_at_it(tmp_path):
@@ -366,6 +423,26 @@ large = 1
     assert "resuming from" in out and "[  7/8]" in out and "[  6/8]" not in out
 
 
+def test_takeoff_search_with_two_workers_and_a_resume_with_one(tmp_path, capsys):
+    config = Path(__file__).parents[1] / "configs" / "search_landscape.toml"
+    out_dir = tmp_path / "run"
+    small = ["--set", "search.initial=2", "--set", "search.batch=2",
+             "--set", "search.gp_restarts=2", "--set", "search.gp_steps=50",
+             "--set", "search.direct_evaluations=100"]
+    code, out, _ = run_cli(["search", str(config), "--out", str(out_dir), "--workers", "2",
+                            "--set", "search.budget=4", *small], capsys)
+    assert code == 0, out
+    assert "[  4/4] explore" in out and "distinct strategies in 4 evaluations" in out
+    assert json.loads((out_dir / "config.json").read_text())["executor"]["workers"] == 2
+    # Where the evaluations run is not part of the search: a resume may run them elsewhere.
+    code, out, _ = run_cli(["search", str(config), "--out", str(out_dir),
+                            "--set", "search.budget=5", *small], capsys)
+    assert code == 0, out
+    assert "resuming from" in out and "[  5/5]" in out and "[  4/5]" not in out
+    logged = [json.loads(line) for line in (out_dir / "evaluations.jsonl").open()]
+    assert [r["index"] for r in logged if r["event"] == "evaluation"] == [0, 1, 2, 3, 4]
+
+
 @pytest.mark.parametrize("text, message", [
     ("[search]\nbudgett = 3\n", "unknown key 'search.budgett'"),
     ("[search]\nbudget = 'many'\n", "key 'search.budget' must be an int; got 'many'"),
@@ -384,6 +461,10 @@ large = 1
      "vectors of 3 numbers"),
     ("[search]\nbudget = 2\ninitial = 2\nfeature_low = [0, 0]\nfeature_high = [1, 1]\n",
      r"landscape.feature_dim = 1: feature_low/feature_high give 2 components"),
+    ("[executor]\nbackend = 'dask'\n", r"\[executor\]: backend must be one of local, ray"),
+    ("[executor]\nworkers = 0\n", r"\[executor\]: workers must be at least 1; got 0"),
+    ("[executor]\naddress = 'auto'\n", r"\[executor\]: address \('auto'\) names a Ray cluster"),
+    ("[executor]\nthreads = 2\n", "unknown key 'executor.threads'"),
 ])
 def test_takeoff_search_config_errors_name_the_key(tmp_path, capsys, text, message):
     config = write_config(tmp_path, text)

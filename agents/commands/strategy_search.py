@@ -6,11 +6,14 @@ The config file (see configs/search_landscape.toml):
     [search]                      # bds.search.SearchSettings
     [landscape]                   # bds.landscapes.LandscapeSettings
     [box]                         # optional lower/upper bounds of x (default: the unit box)
+    [executor]                    # optional: where a round's evaluations run
+                                  # (jaxsim.executor.ExecutorSettings; --workers sets workers)
 
 The run directory holds the resolved config (config.json) and the evaluation log
 (evaluations.jsonl); running the same command again resumes the search from that log. A resumed
-search may be given another search.budget; any other change to the config is refused, since the
-log would then mix the results of two searches (or of two black boxes).
+search may be given another search.budget and other [executor] settings; any other change to the
+config is refused, since the log would then mix the results of two searches (or of two black
+boxes).
 """
 
 import dataclasses
@@ -21,13 +24,16 @@ from pathlib import Path
 import numpy as np
 
 from agents import config as config_io
+from jaxsim.executor import ExecutorSettings, executor_from
 from jaxsim.atomic import check_writable, write_text_atomic
 from bds.gp import to_unit
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.search import SearchSettings, check_bounds, logged_evaluations, search
 
 BLACK_BOXES = ("landscape",)
-RESUMABLE = ("search.budget",)        # the config keys a resumed search may change
+# The config keys a resumed search may change: its budget, and where it runs.
+RESUMABLE = ("search.budget",
+             *(f"executor.{field.name}" for field in dataclasses.fields(ExecutorSettings)))
 
 
 @dataclass(frozen=True)
@@ -42,6 +48,7 @@ class SearchConfig:
     search: SearchSettings = field(default_factory=SearchSettings)
     landscape: LandscapeSettings = field(default_factory=LandscapeSettings)
     box: Box = field(default_factory=Box)
+    executor: ExecutorSettings = field(default_factory=ExecutorSettings)
 
     def __post_init__(self):
         if self.black_box not in BLACK_BOXES:
@@ -67,17 +74,25 @@ class SearchConfig:
         return np.zeros(self.landscape.dim), np.ones(self.landscape.dim)
 
 
-def black_box(config: SearchConfig):
-    """g(x) for the configured black box, and the function naming the strategy of a point."""
-    landscape = StrategyLandscape(config.landscape)
-    lower, upper = config.bounds()
+@dataclass(frozen=True, eq=False)
+class LandscapeBlackBox:
+    """The `landscape` black box: g(x) is the feature of the synthetic landscape at x of the
+    box [lower, upper]; `label(x)` names the strategy there. An object, not a closure, so that
+    worker processes can be sent it."""
+    landscape: StrategyLandscape
+    lower: np.ndarray
+    upper: np.ndarray
 
-    def g(x):
-        return landscape(to_unit(np.asarray(x), lower, upper))
+    def __call__(self, x):
+        return self.landscape(to_unit(np.asarray(x), self.lower, self.upper))
 
-    def label(x):
-        return int(landscape.label(to_unit(np.asarray(x), lower, upper)))
-    return g, label
+    def label(self, x):
+        return int(self.landscape.label(to_unit(np.asarray(x), self.lower, self.upper)))
+
+
+def black_box(config: SearchConfig) -> LandscapeBlackBox:
+    """g(x) for the configured black box (with `label(x)`, the strategy of a point)."""
+    return LandscapeBlackBox(StrategyLandscape(config.landscape), *config.bounds())
 
 
 def _flat(tree, prefix=""):
@@ -111,9 +126,11 @@ def _check_resumable(out_dir, resolved):
                 "same config or another --out")
 
 
-def run(config_path, out_dir=None, overrides=(), workers=1, echo=print):
+def run(config_path, out_dir=None, overrides=(), workers=None, echo=print):
     """Load the config, run or resume the search, print progress and a summary; returns the
-    SearchResult."""
+    SearchResult. `workers`, when given, overrides the config's executor.workers."""
+    if workers is not None:
+        overrides = [*overrides, f"executor.workers={workers}"]
     config = config_io.load(config_path, SearchConfig, overrides)
     out_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
     log = out_dir / "evaluations.jsonl"
@@ -122,7 +139,8 @@ def run(config_path, out_dir=None, overrides=(), workers=1, echo=print):
         _check_resumable(out_dir, json.loads(text))
     check_writable(out_dir, what="the search's log")
     write_text_atomic(out_dir / "config.json", text)
-    g, label = black_box(config)
+    g = black_box(config)
+    label = g.label
     settings = config.search
     # Strategies of the evaluations the log already holds, so progress says what is new.
     seen = {label(record["x"]) for record in logged_evaluations(log)
@@ -139,7 +157,9 @@ def run(config_path, out_dir=None, overrides=(), workers=1, echo=print):
 
     if log.exists():
         echo(f"resuming from {log}")
-    result = search(g, *config.bounds(), settings, log=log, workers=workers, progress=progress)
+    with executor_from(config.executor) as executor:
+        result = search(g, *config.bounds(), settings, log=log, progress=progress,
+                        executor=executor)
     labels = [label(x) for x in result.x]
     echo(f"\n{settings.strategy} search: {len(set(labels))} distinct strategies in "
          f"{len(labels)} evaluations (log: {log})")
