@@ -3,6 +3,7 @@
 import argparse
 import os
 import sys
+import traceback
 import warnings
 
 from jaxsim import allocator
@@ -64,13 +65,14 @@ def _cmd_mjcf(args):
 def _cmd_search(args):
     from agents.commands import strategy_search
     from agents.config import ConfigError
+    from jaxsim.executor import ExecutorError
     from bds.search import SearchError
     from jaxsim.atomic import OutputError
     from jaxsim.runlog import LogError
 
     try:
         strategy_search.run(args.config, args.out, args.set, args.workers)
-    except (ConfigError, SearchError, OutputError, LogError) as error:
+    except (ConfigError, SearchError, OutputError, LogError, ExecutorError) as error:
         raise SystemExit(f"takeoff search: {error}")
 
 
@@ -121,12 +123,78 @@ def _cmd_train(args):
 
     if (args.config is None) == (args.resume is None):
         raise SystemExit("takeoff train: give a CONFIG to start a run or --resume DIR, not both")
+    cluster = _cluster(args)
+    if args.processes > 1:
+        from agents.commands import launch
+        raise SystemExit(launch.launch(_train_args(args), args.processes))
+    from agents.rl import parallel
+
     try:
-        train_commands.train(args.config, args.out, args.set, args.resume, args.data_dir)
+        train_commands.train(args.config, args.out, args.set, args.resume, args.data_dir,
+                             cluster=cluster)
     except run_errors() as error:
-        raise SystemExit(f"takeoff train: {error}")
+        _leave(cluster, f"takeoff train{parallel.process_label()}: {error}")
     except KeyboardInterrupt:
         raise SystemExit(130)
+    except Exception:
+        if cluster is None:
+            raise
+        traceback.print_exc()
+        _leave(cluster, f"takeoff train{parallel.process_label()}: failed (above)")
+
+
+def _leave(cluster, message):
+    """A SystemExit with `message`; a process of a multi-process run says it and leaves at
+    once, rather than wait at JAX's shutdown barrier for processes that will not come there
+    (its launcher, or the cluster's runtime, ends them)."""
+    if cluster is None:
+        raise SystemExit(message)
+    print(message, file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(1)
+
+
+def _train_args(args) -> list:
+    """The arguments of `takeoff train` that say what to train (for each launched process)."""
+    words = [args.config] if args.config is not None else ["--resume", args.resume]
+    for flag, value in (("--out", args.out), ("--data-dir", args.data_dir)):
+        if value is not None:
+            words += [flag, value]
+    for override in args.set:
+        words += ["--set", override]
+    return words
+
+
+def _cluster(args):
+    """The multi-process run this process joins (None: none) from --coordinator,
+    --num-processes and --process-id; a SystemExit for flags that do not go together."""
+    given = [flag for flag, value in (("--num-processes", args.num_processes),
+                                      ("--process-id", args.process_id)) if value is not None]
+    if args.coordinator is None:
+        if given:
+            raise SystemExit(f"takeoff train: {given[0]} goes with --coordinator HOST:PORT")
+        return None
+    if args.processes > 1:
+        raise SystemExit("takeoff train: --processes starts a run's processes on this host, "
+                         "--coordinator joins a run as one of them; give one or the other")
+    from agents.rl.parallel import Cluster
+
+    if args.coordinator == "auto":
+        if given:
+            raise SystemExit(f"takeoff train: with --coordinator auto the cluster's environment "
+                             f"gives the processes and their indices; drop {' and '.join(given)}")
+        return Cluster()
+    host, colon, port = args.coordinator.rpartition(":")
+    if not (colon and host and port.isdigit()):
+        raise SystemExit(f"takeoff train: --coordinator must be HOST:PORT or auto; got "
+                         f"{args.coordinator!r}")
+    if len(given) < 2:
+        raise SystemExit("takeoff train: --coordinator HOST:PORT needs --num-processes N and "
+                         "--process-id I")
+    if not 0 <= args.process_id < args.num_processes:
+        raise SystemExit(f"takeoff train: --process-id must be 0 … {args.num_processes - 1} "
+                         f"with --num-processes {args.num_processes}; got {args.process_id}")
+    return Cluster(args.coordinator, args.num_processes, args.process_id)
 
 
 def _cmd_eval(args):
@@ -192,8 +260,10 @@ def build_parser():
                                  "is resumed")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a config value (repeatable)")
-    p.add_argument("--workers", type=_positive_int, default=1,
-                   help="evaluate a round's points in this many threads at once")
+    p.add_argument("--workers", type=_positive_int,
+                   help="evaluate a round's points in this many worker processes at once (or "
+                        "Ray tasks, with [executor] backend = \"ray\"); overrides the config's "
+                        "executor.workers")
     p.set_defaults(run=_cmd_search)
     p = sub.add_parser("pvae", help="the pose VAE: build its dataset from motion capture, train it")
     pvae_sub = p.add_subparsers(dest="pvae_command", metavar="STEP", required=True)
@@ -215,6 +285,18 @@ def build_parser():
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a config value (repeatable)")
     p.add_argument("--data-dir", help=DATA_DIR_HELP)
+    p.add_argument("--processes", type=_positive_int, default=1, metavar="N",
+                   help="train as N processes of one run on this host (jax.distributed), the "
+                        "environments split over them")
+    p.add_argument("--coordinator", metavar="HOST:PORT",
+                   help="join a multi-process run as one of its processes (one per machine): "
+                        "where process 0 listens; auto: as the cluster's environment says "
+                        "(SLURM, Open MPI, …)")
+    p.add_argument("--num-processes", type=_positive_int, metavar="N",
+                   help="with --coordinator HOST:PORT: the run's number of processes")
+    p.add_argument("--process-id", type=int, metavar="I",
+                   help="with --coordinator HOST:PORT: this process's index, 0 … N−1 (process 0 "
+                        "writes the run directory)")
     p.set_defaults(run=_cmd_train)
     p = sub.add_parser("eval", help="run a trained policy deterministically and report")
     p.add_argument("run_dir", help="a run directory from takeoff train")

@@ -21,6 +21,7 @@ import numpy as np
 
 from agents import config as config_io
 from agents.checkpoint import previous_path
+from agents.rl import parallel
 from agents.rl import trainer as trainer_lib
 from agents.datadir import data_dir_from
 from agents.rl.ppo import PPOSettings
@@ -154,8 +155,12 @@ def load_run_config(run_dir) -> TrainConfig:
 
 
 def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=None,
-          echo=print):
-    """Start a run from a config (in out_dir, default runs/<config name>) or resume one."""
+          echo=print, cluster=None):
+    """Start a run from a config (in out_dir, default runs/<config name>) or resume one. With
+    `cluster` (a `parallel.Cluster`), as one process of a multi-process run: every process
+    calls this with the same arguments; only process 0 reads the checkpoint, writes the run
+    directory and shows progress (the others read the config, and on resuming the run's
+    config.json, so on a cluster the run directory must be on a shared filesystem to resume)."""
     if resume is not None:
         run_dir = Path(resume)
         source = run_dir / CONFIG
@@ -165,35 +170,62 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
     else:
         source = config_path
         config = load_config(config_path, overrides)
+    parallel.start(config.run.devices, cluster)        # before anything starts JAX's backend
+    writer = parallel.is_writer()
+    if not writer:
+        echo = _quiet
+    if resume is None:
         run_dir = config_io.run_directory(
-            config_path, out_dir, lambda d: any(f.exists() for f in (
+            config_path, out_dir, lambda d: writer and any(f.exists() for f in (
                 d / trainer_lib.CHECKPOINT, previous_path(d / trainer_lib.CHECKPOINT))),
             "resume it with `takeoff train --resume {run_dir}` or pick another --out")
+    _check_devices(config, source)
     trainer = _trainer_for(config, source, data_dir)
     state_bytes, sample_bytes = trainer.footprint()
     _check_memory(state_bytes + sample_bytes, source,
                   f"run.envs × run.steps_per_iteration = {config.run.envs} × "
                   f"{config.run.steps_per_iteration}")
-    existing = sum(f.stat().st_size for f in (run_dir / trainer_lib.CHECKPOINT,
-                   previous_path(run_dir / trainer_lib.CHECKPOINT)) if f.is_file())
-    check_writable(run_dir, 3 * state_bytes - existing + 2**20, "the run's checkpoints")
+    if writer:
+        existing = sum(f.stat().st_size for f in (run_dir / trainer_lib.CHECKPOINT,
+                       previous_path(run_dir / trainer_lib.CHECKPOINT)) if f.is_file())
+        check_writable(run_dir, 3 * state_bytes - existing + 2**20, "the run's checkpoints")
     state = trainer.init()
-    if resume is not None:     # the checkpoint must fit (overrides included) before anything
-        state = trainer_lib.load_checkpoint(state, run_dir, echo)  # in run_dir is rewritten
-        done = trainer_lib.completed_iterations(state)
+    if resume is not None and writer:
+        # the checkpoint must fit (overrides included) before anything in run_dir is rewritten
+        state = trainer_lib.load_checkpoint(state, run_dir, echo)
+    state = trainer.place(state)                    # every process gets process 0's state
+    done = trainer_lib.completed_iterations(state)  # 0: also a run that died before its first
+    if resume is not None:                          # checkpoint
         echo(f"resuming {run_dir} at iteration {done}")
-    else:
-        done = 0                                  # a run that died before its first checkpoint
-    trainer_lib.trim_metrics(run_dir, done, echo)  # left lines that do not count
-    write_text_atomic(run_dir / CONFIG, json.dumps(config.sections(), indent=2) + "\n")
+    if writer:
+        trainer_lib.trim_metrics(run_dir, done, echo)  # left lines that do not count
+        write_text_atomic(run_dir / CONFIG, json.dumps(config.sections(), indent=2) + "\n")
     s = config.run
     echo(f"training {s.task}: {s.envs} environments × {s.steps_per_iteration} steps = "
-         f"{s.samples_per_iteration} samples per iteration, {s.iterations} iterations → {run_dir}")
+         f"{s.samples_per_iteration} samples per iteration, {s.iterations} iterations"
+         f"{parallel.describe(trainer.layout.mesh)} → {run_dir}")
     try:
         state = trainer_lib.run(trainer, state, run_dir, echo)
     finally:                      # the curve of what was done, whatever ended the run; its own
-        _plot_after_run(run_dir, echo)     # failure must not hide the run's error
+        if writer:                # failure must not hide the run's error
+            _plot_after_run(run_dir, echo)
     return trainer, state
+
+
+def _quiet(*_):
+    """The echo of a process that shows nothing (all but process 0 of a multi-process run)."""
+
+
+def _check_devices(config: TrainConfig, source):
+    """A ConfigError naming `source` when the devices `run.devices` asks for are not there, or
+    `run.envs` cannot be split evenly over the run's devices."""
+    try:
+        mesh = parallel.mesh(config.run.devices)
+    except config_io.ConfigError as error:
+        raise config_io.ConfigError(f"{source}: {error}") from None
+    why = parallel.check_split(config.run.envs, mesh, config.run.devices)
+    if why:
+        raise config_io.ConfigError(f"{source}: {why}")
 
 
 def _plot_after_run(run_dir, echo):
@@ -261,8 +293,9 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     starts; report the mean return, length and task metrics over each first episode. Returns
     the summary, the environment and the poses of episode 0 (steps, nq)."""
     config = load_run_config(run_dir)
-    source = Path(run_dir) / CONFIG
-    trainer = _trainer_for(config, source, data_dir)
+    config = dataclasses.replace(config, run=dataclasses.replace(config.run, devices=1))
+    source = Path(run_dir) / CONFIG            # (evaluation runs on one device, however the
+    trainer = _trainer_for(config, source, data_dir)      # run was trained)
     env = trainer.env_for(trainer.curriculum.init())
     state_bytes, sample_bytes = trainer.footprint(episodes, env.episode_steps)
     _check_memory(state_bytes + sample_bytes, source, f"--episodes {episodes}")

@@ -180,12 +180,15 @@ class PPO(NamedTuple):
     update: Callable
 
 
-def make_ppo(obs_size: int, action_size: int, settings: PPOSettings) -> PPO:
+def make_ppo(obs_size: int, action_size: int, settings: PPOSettings, spread=None) -> PPO:
     """The policy and value networks, `init` and the pure, jittable `update(state, batch, key)
     -> (state, metrics)`: GAE advantages and TD(λ) targets of `batch`, then `settings.epochs`
     epochs, each a shuffle and a scan of one policy and one value Adam step per minibatch of
     `settings.minibatch_size` flattened (T·N) samples (the remainder is dropped; advantages are
-    normalised per minibatch). Metrics are means over all minibatches."""
+    normalised per minibatch). Metrics are means over all minibatches. `spread`, when given,
+    lays out the shuffled minibatches (n_minibatches, minibatch, …) of an epoch (the trainer's
+    on several devices: each minibatch's samples over the devices, `parallel.spread_samples`);
+    it does not change what is computed."""
     policy_net = PolicyNetwork(action_size, tuple(settings.hidden))
     value_net = ValueNetwork(tuple(settings.hidden))
     policy_apply, value_apply = _apply_of(policy_net), _apply_of(value_net)
@@ -236,6 +239,8 @@ def make_ppo(obs_size: int, action_size: int, settings: PPOSettings) -> PPO:
             order = jax.random.permutation(epoch_key, count)[: n_minibatches * minibatch]
             order = order.reshape(n_minibatches, minibatch)
             shuffled = jax.tree_util.tree_map(lambda x: x[order], flat)
+            if spread is not None:
+                shuffled = spread(shuffled)
             return jax.lax.scan(lambda c, d: minibatch_step(sigma, c, d), carry, shuffled)
 
         carry = (state.policy_params, state.value_params, state.policy_opt_state,

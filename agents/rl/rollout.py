@@ -61,15 +61,19 @@ def _select(done, fresh, stepped):
 
 
 def make_rollout(env: Env, policy_apply, value_apply, n_steps: int, deterministic=False,
-                 keep_physics=False, params_axis=None, chunk=None):
+                 keep_physics=False, params_axis=None, chunk=None, per_shard=None):
     """rollout(params, runner, policy_params, value_params, norm, sigma, key) ->
     (runner, batch, raw_obs, episodes, metrics, physics-or-None); see the module docstring.
     `params` is shared by all environments (`params_axis` None) or has one set per environment
     along axis 0 (`params_axis` 0). The environments step with the batch as the innermost axis
     (`jaxsim.batch_last`), where the simulator runs faster, `chunk` environments at a time
     (None: `batch_last`'s measured default) so that a large batch stays in the CPU's cache;
-    their resets, once per control step, with `jax.vmap`."""
+    their resets, once per control step, with `jax.vmap`. `per_shard` (the trainer's when the
+    batch is split over devices, `parallel.Layout.per_shard`) makes the step run on each
+    device's own environments, chunked there."""
     batched_step = batch_last.vmap(env.step, in_axes=(params_axis, 0, 0), chunk=chunk)
+    if per_shard is not None:
+        batched_step = per_shard(batched_step, (params_axis, 0, 0))
     batched_reset = jax.vmap(env.reset, in_axes=(params_axis, 0))
 
     def rollout(params, runner: Runner, policy_params, value_params, norm: RunningNorm, sigma,

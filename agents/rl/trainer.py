@@ -18,6 +18,11 @@ batch, or given per environment with `params_per_env`), so they may differ withi
 curriculum whose schedule changes something that shapes the program (the control rate) names it
 by a static key: the trainer compiles one rollout per key, with the env's `variant(key)`.
 
+The environments may be split over several devices (`run.devices` per process) and processes
+(`agents.rl.parallel`): the same two programs, compiled over a mesh of those devices, with the
+environment batch sharded along it and the rest replicated; `place` lays out a state made on
+the host, `host` gathers one back (a checkpoint is the same whatever the split).
+
 The Python loop in `run` only logs (`metrics.jsonl`, one line per iteration, read back by the
 policy of `jaxsim.runlog`), shows progress (saying when it compiles, and leaving compile time out
 of the time it estimates), checkpoints atomically with a checksum every `checkpoint_every`
@@ -44,6 +49,7 @@ import numpy as np
 from agents.checkpoint import (CheckpointError, fill, intact, newest_intact, previous_path,
                                read_msgpack, write_msgpack)
 from agents.rl import curriculum as curriculum_lib
+from agents.rl import parallel
 from agents.rl import rollout as rollout_lib
 from agents.rl.networks import sigma_at
 from agents.rl.ppo import PPOSettings, PPOState, RunningNorm, make_ppo
@@ -73,6 +79,8 @@ class RunSettings:
     time_limit_minutes: float = 0.0   # stop (with a checkpoint) after this long; 0: no limit
     stop_difficulty: float = 0.0      # stop once the curriculum reaches it (z_freeze); 0: never
     chunk: int = 0                    # environments simulated at once; 0: the measured default
+    devices: int = 1                  # devices (per process) the environments are split over;
+                                      # 0: all local ones (on the CPU one per core)
 
     # What the computation (and the checkpoint) of a run is made of; the rest says how long
     # the loop runs and how often it reports.
@@ -83,7 +91,7 @@ class RunSettings:
                      "progress_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1; got {getattr(self, name)}")
-        for name in ("time_limit_minutes", "stop_difficulty", "chunk"):
+        for name in ("time_limit_minutes", "stop_difficulty", "chunk", "devices"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be ≥ 0; got {getattr(self, name)}")
 
@@ -114,22 +122,40 @@ class Trainer:
         self.env, self.env_params, self.run_settings, self.ppo_settings = env, env_params, run, ppo
         self.params_per_env = params_per_env
         self.curriculum = getattr(env, "curriculum", None) or curriculum_lib.NoCurriculum()
-        self.ppo = make_ppo(env.observation_size, env.action_size, ppo)
+        # The devices the environments are split over (`agents.rl.parallel`): the programs
+        # are the one-device programs, with the batch laid out over the mesh.
+        self.layout = layout = parallel.Layout(parallel.mesh(run.devices))
+        why = parallel.check_split(run.envs, layout.mesh, run.devices)
+        if why:
+            raise ValueError(why)
+        split = layout.size > 1
+        self.ppo = make_ppo(env.observation_size, env.action_size, ppo,
+                            spread=layout.spread_samples if split else None)
         self.policy_apply, self.value_apply = self.ppo.policy_apply, self.ppo.value_apply
         self.rollout = self._rollout_of(env)
         self._compiled = {}                                  # rollouts, by static key
-        self._learn_compiled = jax.jit(self._learn)
+        replicated, envs, steps = layout.replicated, layout.envs, layout.steps
+        # (pytree prefixes: the environments batched on axis 0, their samples on axis 1)
+        self.state_sharding = TrainState(replicated, replicated, envs, replicated, replicated)
+        self._collected_sharding = (envs, steps, steps, steps, steps, replicated, replicated)
+        self._learn_compiled = jax.jit(
+            self._learn, in_shardings=(self.state_sharding, self._collected_sharding),
+            out_shardings=(self.state_sharding, replicated, replicated))
 
     def _rollout_of(self, env):
         return rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
                                         self.run_settings.steps_per_iteration, params_axis=0,
-                                        chunk=self.run_settings.chunk or None)
+                                        chunk=self.run_settings.chunk or None,
+                                        per_shard=(self.layout.per_shard
+                                                   if self.layout.size > 1 else None))
 
     def with_run_settings(self, run: RunSettings) -> "Trainer":
         """The same compiled trainer with other loop settings (iterations, checkpointing);
         the settings that shape the computation must be equal."""
-        if any(getattr(run, k) != getattr(self.run_settings, k) for k in run.SHAPING):
-            raise ValueError("with_run_settings cannot change " + ", ".join(run.SHAPING))
+        if any(getattr(run, k) != getattr(self.run_settings, k)
+               for k in (*run.SHAPING, "devices")):
+            raise ValueError("with_run_settings cannot change " + ", ".join(run.SHAPING)
+                             + " or devices")
         twin = copy.copy(self)
         twin.run_settings = run
         return twin
@@ -204,10 +230,23 @@ class Trainer:
         if collect is None:
             rollout = self._rollout_of(self.env_for(state.curriculum))
             collect = jax.jit(functools.partial(self._collect, rollout),
-                              compiler_options=xla_options.simulation_options())
+                              compiler_options=xla_options.simulation_options(),
+                              in_shardings=(self.state_sharding,),
+                              out_shardings=self._collected_sharding)
         result = self._learn_compiled(state, collect(state))
         self._compiled[key] = collect        # known compiled once a call of it has returned
         return result
+
+    def place(self, state: TrainState) -> TrainState:
+        """A state made or read on the host (`init`, `load_checkpoint`) laid out over the
+        run's devices; in a multi-process run every process must call it, and all get
+        process 0's state."""
+        return self.layout.place(state, self.state_sharding)
+
+    def host(self, state: TrainState) -> TrainState:
+        """The state as numpy arrays, gathered from all devices and processes (what a
+        checkpoint holds; in a multi-process run every process must call it)."""
+        return self.layout.host(state)
 
     def _collect(self, rollout, state: TrainState):
         """The rollout of an iteration, from the state's key."""
@@ -330,16 +369,24 @@ def _json_value(value):
 def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
     """Train until `iterations` are done (or the time limit passes, or the curriculum reaches
     `stop_difficulty`), logging, showing progress and checkpointing in run_dir; Ctrl-C
-    checkpoints and stops."""
+    checkpoints and stops. In a multi-process run every process runs this loop and only
+    process 0 logs, shows progress and writes checkpoints; the processes agree, between
+    iterations, on a Ctrl-C, a SIGTERM or the time limit (`parallel.Stop`), so they stop
+    together."""
     run_dir = Path(run_dir)
     settings = trainer.run_settings
+    writer = parallel.is_writer()
+    if not writer:
+        echo = _quiet
     first = completed_iterations(state)
     saved = first                       # the iteration of the checkpoint in run_dir (0: none)
-    logged = [r for r in read_metrics(run_dir) if r["iteration"] == first] if first else []
+    logged = ([r for r in read_metrics(run_dir) if r["iteration"] == first]
+              if first and writer else [])
     before = logged[-1]["seconds"] if logged else 0.0   # a resumed run's clock goes on
     resumed_at = last_time = time.perf_counter()
     started = resumed_at - before
     timed_seconds, timed_iterations = 0.0, 0    # iterations that did not compile, for the ETA
+    stop = parallel.Stop().listen()
     try:
         for _ in range(first, settings.iterations):
             # `state` moves on only once its iteration is logged, so a Ctrl-C checkpoints
@@ -363,16 +410,21 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
                       "seconds": now - started,
                       **{k: _json_value(v) for k, v in metrics.items()}}
             last_time = now
-            runlog.append(run_dir / METRICS, record)
+            if writer:
+                runlog.append(run_dir / METRICS, record)
             state = new_state
             if record["iteration"] % settings.progress_every == 0:
                 echo(_line(record, settings.iterations,
                            timed_seconds / timed_iterations if timed_iterations else None))
             if record["iteration"] % settings.checkpoint_every == 0:
-                save_checkpoint(state, run_dir)
+                _save(trainer, state, run_dir, writer)
                 saved = record["iteration"]
-            if (settings.time_limit_minutes
-                    and now - resumed_at > 60 * settings.time_limit_minutes):
+            interrupted, time_up = stop.agreed(  # (in one process: no one to ask)
+                record["iteration"], settings.time_limit_minutes
+                and now - resumed_at > 60 * settings.time_limit_minutes)
+            if interrupted:
+                raise KeyboardInterrupt
+            if time_up:
                 echo(f"time limit of {settings.time_limit_minutes:g} min reached")
                 break
             if _reached(record, settings.stop_difficulty):
@@ -382,11 +434,24 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
     except KeyboardInterrupt:
         echo(f"\ninterrupted: checkpoint at iteration {completed_iterations(state)} in {run_dir}")
         if completed_iterations(state) != saved:
-            save_checkpoint(state, run_dir)
+            _save(trainer, state, run_dir, writer)
         raise
+    finally:
+        stop.close()
     if completed_iterations(state) != saved:  # (saving it again would push out the previous
-        save_checkpoint(state, run_dir)        # checkpoint, the fallback from a damaged one)
+        _save(trainer, state, run_dir, writer)  # checkpoint, the fallback from a damaged one)
     return state
+
+
+def _quiet(*_):
+    """The echo of a process that shows nothing (all but process 0 of a multi-process run)."""
+
+
+def _save(trainer: Trainer, state: TrainState, run_dir, writer: bool):
+    """The state gathered to the host (by every process) and written (by process 0)."""
+    on_host = trainer.host(state)
+    if writer:
+        save_checkpoint(on_host, run_dir)
 
 
 def _reached(record, stop_difficulty) -> bool:
