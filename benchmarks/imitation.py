@@ -7,6 +7,14 @@
                                                     # then `report`
     python benchmarks/imitation.py report           # evaluate that run (16 episodes, mean action),
                                                     # figures into docs/, summary into results/
+    python benchmarks/imitation.py to-target [--settings NAME …] [--cap-minutes 30]
+                                                    # minutes to the walk target for each network /
+                                                    # epoch setting (SETTINGS), one after another
+
+The walk target (`WALK_TARGET_ITERATIONS`): the training episodes of that many iterations in a row
+have no fall (the env's `fell` metric is 0 over their 4096 samples each); the run is then stopped
+with Ctrl-C (it checkpoints) and its deterministic policy evaluated on 16 episodes, which must
+all reach the 10 s time limit.
 
 Needs the reference data (TAKEOFF_DATA, default ../shared/data).
 """
@@ -14,6 +22,10 @@ Needs the reference data (TAKEOFF_DATA, default ../shared/data).
 import argparse
 import json
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +80,79 @@ def report(args):
     print(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
 
 
+WALK_TARGET_ITERATIONS = 10
+# The network and PPO settings timed to the walk target: the thesis's, and cheaper ones.
+SETTINGS = {
+    "thesis": [],                                            # 1024-512, 5 epochs of 256
+    "1024-512, 2 epochs": ["ppo.epochs=2"],
+    "256-256, 5 epochs": ["ppo.hidden=[256, 256]"],
+    "1024-512, 5 epochs of 1024": ["ppo.minibatch_size=1024"],
+}
+
+
+def walk_target_reached(records) -> dict | None:
+    """The metrics record of the iteration that completes the walk target (see the module
+    docstring), or None."""
+    streak = 0
+    for record in records:
+        streak = streak + 1 if record.get("env/fell") == 0 else 0
+        if streak == WALK_TARGET_ITERATIONS:
+            return record
+    return None
+
+
+def to_target(args):
+    """Train each setting until the walk target or `--cap-minutes`, one after another."""
+    names = args.settings or list(SETTINGS)
+    unknown = [n for n in names if n not in SETTINGS]
+    if unknown:
+        raise SystemExit(f"unknown setting(s) {unknown}; known: {list(SETTINGS)}")
+    rows = []
+    for name in names:
+        out = RESULTS / "walk_to_target" / name.replace(" ", "_").replace(",", "")
+        if out.exists():
+            shutil.rmtree(out)
+        overrides = [f"run.time_limit_minutes={args.cap_minutes}", "run.iterations=100000",
+                     *SETTINGS[name], *args.set]
+        command = [str(Path(sys.executable).parent / "takeoff"), "train", str(CONFIG),
+                   "--out", str(out), "--data-dir", str(reference_data("deepmimic"))]
+        for override in overrides:
+            command += ["--set", override]
+        print(f"{name}: {' '.join(command)}", flush=True)
+        start = time.perf_counter()
+        process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL)
+        reached = None
+        while process.poll() is None:
+            time.sleep(5)
+            metrics = out / "metrics.jsonl"
+            records = ([json.loads(line) for line in metrics.read_text().splitlines()
+                        if line.endswith("}")] if metrics.exists() else [])
+            reached = walk_target_reached(records)
+            if reached is not None:
+                process.send_signal(signal.SIGINT)         # the run checkpoints and stops
+                break
+        process.wait()
+        wall_s = time.perf_counter() - start
+        records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+        reached = walk_target_reached(records)
+        summary = train_commands.evaluate(out, episodes=16, data_dir=reference_data("deepmimic"),
+                                          echo=lambda *_: None)[0]
+        last = records[-1]
+        rows.append({"setting": name, "overrides": SETTINGS[name],
+                     "target_minutes": reached["seconds"] / 60 if reached else None,
+                     "target_samples": reached["samples"] if reached else None,
+                     "target_iteration": reached["iteration"] if reached else None,
+                     "samples_per_second": last["samples"] / last["seconds"],
+                     "process_wall_minutes": wall_s / 60,
+                     "evaluation_full_length": summary["episode_length"],
+                     "evaluation_fell": summary.get("fell"),
+                     "evaluation_pose_error_degrees": summary.get("pose_error_degrees")})
+        print(json.dumps(rows[-1]), flush=True)
+        write_text_atomic(RESULTS / "walk_to_target.json",
+                          json.dumps({"machine": machine_info(), "cap_minutes": args.cap_minutes,
+                                      "rows": rows}, indent=2) + "\n")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -79,6 +164,10 @@ def main():
     p.add_argument("--minutes", type=float, default=60.0)
     p.set_defaults(run=train)
     sub.add_parser("report").set_defaults(run=report)
+    p = sub.add_parser("to-target")
+    p.add_argument("--settings", nargs="+", metavar="NAME", help=f"of {list(SETTINGS)}")
+    p.add_argument("--cap-minutes", type=float, default=30.0)
+    p.set_defaults(run=to_target)
     for p in sub.choices.values():
         p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     args = parser.parse_args()
