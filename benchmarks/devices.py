@@ -46,11 +46,9 @@ def measure(args):
     start = time.perf_counter()
     jax.block_until_ready(trainer.iteration(state))
     first = time.perf_counter() - start
-    collect = trainer._compiled[trainer._static_key(state.curriculum)]
-    rollout_s, _ = training_speed.timed(collect, state, repeats=args.repeats)
-    collected = collect(state)
-    update_s, _ = training_speed.timed(trainer._learn_compiled, state, collected,
-                                       repeats=args.repeats)
+    rollout_s, _ = training_speed.timed(trainer.collect, state, repeats=args.repeats)
+    collected = trainer.collect(state)
+    update_s, _ = training_speed.timed(trainer.learn, state, collected, repeats=args.repeats)
     iteration_s, _ = training_speed.timed(trainer.iteration, state, repeats=args.repeats)
     samples = config.run.samples_per_iteration
     if parallel.is_writer():

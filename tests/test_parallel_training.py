@@ -40,6 +40,7 @@ TWO_DEVICES = r"""
 import json, re, sys
 import jax
 from agents.commands import train_commands
+from agents.rl import parallel
 
 out, overrides = sys.argv[1], sys.argv[2:]
 quiet = lambda *_: None
@@ -59,12 +60,14 @@ def collectives(text):
                 found.setdefault(op, []).append(computation)
     return found
 
-collect = two._compiled[None]
-collected = collect(state)
+state = parallel.lay_out(state, two.state_sharding)
+collected = two.collect(state)
 print(json.dumps({
     "devices": len(jax.devices()),
-    "rollout": collectives(collect.lower(state).compile().as_text()),
-    "update": collectives(two._learn_compiled.lower(state, collected).compile().as_text()),
+    "rollout": collectives(two._compiled[None].lower(state).compile().as_text()),
+    "update": collectives(two._learn_compiled.lower(
+        *parallel.lay_out((state, collected), two._learn_inputs)).compile().as_text()),
+    "update_devices": len(two.update_layout.mesh.devices.ravel()),
     "env_shards": [list(s.data.shape) for s in state.runner.envs.obs.addressable_shards],
 }))
 """
@@ -141,14 +144,16 @@ def test_two_local_devices_compute_what_one_device_computes(device_runs):
     assert_same_run(out / "two", out / "one")
 
 
-def test_the_rollout_steps_each_device_s_own_environments_and_gradients_are_summed(device_runs):
-    """Compiled for two devices, the rollout communicates nothing (each device steps its half
-    of the environments, in its own chunks), and the update sums the devices' gradients inside
-    its minibatch loop (each minibatch's samples are spread over the devices)."""
+def test_the_rollout_steps_each_device_s_own_environments_and_the_update_runs_on_one(
+        device_runs):
+    """Compiled for two devices in one process, the rollout communicates nothing (each device
+    steps its half of the environments, in its own chunks), and the update runs on the first
+    device alone (its matrix products use every core there), so it communicates nothing
+    either."""
     _, found = device_runs
     assert found["env_shards"] == [[8, 10], [8, 10]]
     assert found["rollout"] == {}
-    assert any(place != "ENTRY" for place in found["update"].get("all-reduce", []))
+    assert found["update_devices"] == 1 and found["update"] == {}
 
 
 def test_two_processes_compute_what_one_computes_and_the_checkpoint_resumes_in_one(

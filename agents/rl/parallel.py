@@ -109,6 +109,11 @@ def mesh(devices: int = 1) -> Mesh:
     return Mesh(np.array(chosen), (AXIS,))
 
 
+def first_device(mesh_: Mesh) -> Mesh:
+    """A one-device mesh of the first device of `mesh_`."""
+    return Mesh(np.asarray(mesh_.devices).ravel()[:1], (AXIS,))
+
+
 def describe(mesh_: Mesh) -> str:
     """How a run is split, for its first line: "" on one device."""
     if mesh_.size == 1:
@@ -175,6 +180,12 @@ class Layout:
             return jax.device_get(tree)
         gathered = jax.jit(_identity, out_shardings=self.replicated)(tree)
         return jax.tree_util.tree_map(lambda x: np.asarray(x.addressable_data(0)), gathered)
+
+
+def lay_out(tree, shardings):
+    """`tree`'s arrays laid out by `shardings` (a pytree prefix of it) on this process's
+    devices: copies only of the arrays laid out otherwise."""
+    return jax.device_put(tree, _expand(shardings, tree))
 
 
 def _identity(tree):

@@ -128,19 +128,24 @@ class Trainer:
         why = parallel.check_split(run.envs, layout.mesh, run.devices)
         if why:
             raise ValueError(why)
-        split = layout.size > 1
+        # The update runs over the same devices across processes, but in one process on its
+        # first device alone: there its matrix products already use every core, and split
+        # over two host devices it ran 2.4× slower, while the rollout ran 1.8× faster
+        # (docs/benchmarks.md, "Both cores"); the samples are gathered to it (a copy).
+        one_process = jax.process_count() == 1
+        self.update_layout = learn = (parallel.Layout(parallel.first_device(layout.mesh))
+                                      if one_process else layout)
         self.ppo = make_ppo(env.observation_size, env.action_size, ppo,
-                            spread=layout.spread_samples if split else None)
+                            spread=learn.spread_samples if learn.size > 1 else None)
         self.policy_apply, self.value_apply = self.ppo.policy_apply, self.ppo.value_apply
         self.rollout = self._rollout_of(env)
         self._compiled = {}                                  # rollouts, by static key
-        replicated, envs, steps = layout.replicated, layout.envs, layout.steps
-        # (pytree prefixes: the environments batched on axis 0, their samples on axis 1)
-        self.state_sharding = TrainState(replicated, replicated, envs, replicated, replicated)
-        self._collected_sharding = (envs, steps, steps, steps, steps, replicated, replicated)
+        self.state_sharding, self._collected_sharding = _shardings(layout)
+        learn_state, learn_collected = _shardings(learn)
+        self._learn_inputs = (learn_state, learn_collected)
         self._learn_compiled = jax.jit(
-            self._learn, in_shardings=(self.state_sharding, self._collected_sharding),
-            out_shardings=(self.state_sharding, replicated, replicated))
+            self._learn, in_shardings=self._learn_inputs,
+            out_shardings=(learn_state, learn.replicated, learn.replicated))
 
     def _rollout_of(self, env):
         return rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
@@ -225,17 +230,31 @@ class Trainer:
         the bookkeeping with XLA's defaults, under which the update's elementwise optimiser
         loops run faster (docs/benchmarks.md, "The jump tasks: training throughput"). The
         rollout is compiled once per static key of the curriculum."""
+        return self.learn(state, self.collect(state))
+
+    def collect(self, state: TrainState):
+        """The rollout of an iteration (the first program), compiled once per static key of the
+        curriculum, on the run's devices."""
         key = self._static_key(state.curriculum)
-        collect = self._compiled.get(key)
-        if collect is None:
+        compiled = self._compiled.get(key)
+        if compiled is None:
             rollout = self._rollout_of(self.env_for(state.curriculum))
-            collect = jax.jit(functools.partial(self._collect, rollout),
-                              compiler_options=xla_options.simulation_options(),
-                              in_shardings=(self.state_sharding,),
-                              out_shardings=self._collected_sharding)
-        result = self._learn_compiled(state, collect(state))
-        self._compiled[key] = collect        # known compiled once a call of it has returned
-        return result
+            compiled = jax.jit(functools.partial(self._collect, rollout),
+                               compiler_options=xla_options.simulation_options(),
+                               in_shardings=(self.state_sharding,),
+                               out_shardings=self._collected_sharding)
+        if self.update_layout is not self.layout:    # (a copy only where the layouts differ)
+            state = parallel.lay_out(state, self.state_sharding)
+        collected = compiled(state)
+        self._compiled[key] = compiled       # known compiled once a call of it has returned
+        return collected
+
+    def learn(self, state: TrainState, collected):
+        """The rest of an iteration from its rollout (the second program), on the update's
+        devices: (the next state, its metrics, whether what it computed is finite)."""
+        if self.update_layout is not self.layout:
+            state, collected = parallel.lay_out((state, collected), self._learn_inputs)
+        return self._learn_compiled(state, collected)
 
     def place(self, state: TrainState) -> TrainState:
         """A state made or read on the host (`init`, `load_checkpoint`) laid out over the
@@ -273,6 +292,14 @@ class Trainer:
                       for k, v in self.curriculum.metrics(curriculum).items()}}
         state = TrainState(ppo_state, norm, runner, key, curriculum)
         return state, metrics, _all_finite(_watched(state, metrics))
+
+
+def _shardings(layout):
+    """(the training state's, the rollout's outputs') shardings over a layout's devices, as
+    pytree prefixes: the environments batched on axis 0, their samples on axis 1."""
+    replicated, envs, steps = layout.replicated, layout.envs, layout.steps
+    return (TrainState(replicated, replicated, envs, replicated, replicated),
+            (envs, steps, steps, steps, steps, replicated, replicated))
 
 
 def env_means(env_metrics, ended) -> dict:
