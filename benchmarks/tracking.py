@@ -331,6 +331,9 @@ def time_mujoco(mj_model, state, batch, steps, repeats):
 
 
 def contacts(args):
+    """Each batch size: the rollout compiled for each --chunk, then timed in `repeats` rounds
+    that call each once in turn (and MuJoCo once, with --mujoco), so that the VM's changes of
+    speed during the measurement fall on all of them alike; medians of the rounds."""
     model, state, _ = contact_scene(args.steps, args.torque_limits, args.batch_layout)
     if args.mujoco:
         import mujoco
@@ -338,20 +341,36 @@ def contacts(args):
     rows = []
     for batch in args.batch:
         states = batched_states(state, batch)
+        variants = []
         for chunk in args.chunk:
             piece = batch if chunk == "whole" else (chunk or None)
             rollout = contact_scene(args.steps, args.torque_limits, args.batch_layout, piece)[2]
-            compile_s, run_s = _timed(rollout, (states,), args.repeats, "maba")
+            start = time.perf_counter()
+            compiled = jax.jit(rollout, compiler_options=xla_options.options_for(
+                "maba")).lower(states).compile()
+            compile_s = time.perf_counter() - start
+            jax.block_until_ready(compiled(states))
+            variants.append((chunk if chunk else batch_last.default_chunk(), compiled, compile_s))
+        times = [[] for _ in variants]
+        mujoco_times, threads, sink = [], None, None
+        for _ in range(args.repeats):
+            for (_, compiled, _), spent in zip(variants, times):
+                start = time.perf_counter()
+                jax.block_until_ready(compiled(states))
+                spent.append(time.perf_counter() - start)
+            if args.mujoco:
+                run_s, threads, sink = time_mujoco(mj_model, mj_state, batch, args.steps, 1)
+                mujoco_times.append(run_s)
+        for (chunk, _, compile_s), spent in zip(variants, times):
+            run_s = statistics.median(spent)
             rows.append({"engine": "takeoff maba", "layout": layout("maba", args.batch_layout),
-                         "batch": batch, "chunk": chunk if chunk else
-                         batch_last.default_chunk(), "devices": jax.device_count(),
+                         "batch": batch, "chunk": chunk, "devices": jax.device_count(),
                          "steps": args.steps, "compile_s": compile_s,
                          "seconds": run_s, "steps_per_s": batch * args.steps / run_s})
-            print(f"contacts batch {batch} chunk {rows[-1]['chunk']} takeoff maba: "
+            print(f"contacts batch {batch} chunk {chunk} takeoff maba: "
                   f"{rows[-1]['steps_per_s']:.0f} steps/s", file=sys.stderr, flush=True)
         if args.mujoco:
-            run_s, threads, sink = time_mujoco(mj_model, mj_state, batch, args.steps,
-                                               args.repeats)
+            run_s = statistics.median(mujoco_times)
             rows.append({"engine": f"MuJoCo {mujoco.__version__}", "batch": batch,
                          "threads": threads, "steps": args.steps, "seconds": run_s,
                          "steps_per_s": batch * args.steps / run_s,

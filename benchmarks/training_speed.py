@@ -6,8 +6,11 @@ median of `repeats` calls after a first (compiling) call, with the XLA options t
 compiles them with: the rollout (simulation and policy; the simulator's options), the PPO update
 (XLA's defaults; also timed under the simulator's options), and the whole
 iteration (the trainer's two programs, and for comparison one program compiled with the
-simulator's options throughout); and the update's floor, its floating-point operations at this
-machine's matmul rate.
+simulator's options throughout); and two floors of the update: its floating-point operations
+at this machine's rate for a large matrix product, and the time of its own matrix products
+alone (`network_passes`: the networks' forward and backward passes at the minibatch's shape, as
+many as the update makes, with nothing else). The update, its passes and the large product are
+timed alternately, so that the VM's changes of speed fall on all three alike.
 """
 
 import statistics
@@ -48,16 +51,32 @@ def timed_alternately(fns, *args, repeats):
     return [statistics.median(spent) for spent in times], firsts
 
 
-def update_floor(update, args, steps, size=2048):
-    """The floating-point operations of one PPO update (`update` jitted, on `args`) and this
-    machine's float32 matmul rate (a size × size product, median of 10): the update cannot run
-    faster than their ratio, however fast the simulation. XLA's cost analysis of the compiled
-    update counts the body of a loop once, so it gives one minibatch step (plus the advantages);
-    times `steps` minibatch steps."""
-    flop = update.lower(*args).compile().cost_analysis()["flops"] * steps
-    a = jnp.ones((size, size), jnp.float32)
-    matmul_s, _ = timed(jax.jit(jnp.matmul), a, a, repeats=10)
-    return flop, 2 * size ** 3 / matmul_s
+def update_flop(update, args, steps):
+    """The floating-point operations of one PPO update (`update` jitted, on `args`). XLA's cost
+    analysis of the compiled update counts the body of a loop once, so it gives one minibatch
+    step (plus the advantages); times `steps` minibatch steps."""
+    return update.lower(*args).compile().cost_analysis()["flops"] * steps
+
+
+def network_passes(trainer, batch, steps, minibatch):
+    """A jitted function of (policy, value parameters) that makes `steps` forward and backward
+    passes of both networks on `minibatch` observations of `batch` each, as the update does, and
+    nothing else (no loss beyond a sum of squares, no optimiser, no shuffling): the time of the
+    update's matrix products."""
+    obs = batch.obs.reshape(-1, batch.obs.shape[-1])
+    pieces = obs.shape[0] // minibatch
+
+    def loss(policy, value, x):
+        return (jnp.sum(trainer.policy_apply(policy, x) ** 2)
+                + jnp.sum(trainer.value_apply(value, x) ** 2))
+
+    def passes(policy, value):
+        def one(total, i):
+            x = jax.lax.dynamic_slice_in_dim(obs, (i % pieces) * minibatch, minibatch)
+            grads = jax.grad(loss, argnums=(0, 1))(policy, value, x * (1.0 + 1e-9 * total))
+            return total + sum(jnp.sum(g) for g in jax.tree_util.tree_leaves(grads)), None
+        return jax.lax.scan(one, jnp.zeros((), obs.dtype), jnp.arange(steps))[0]
+    return jax.jit(passes)
 
 
 def measure(config_path, data_dir, overrides=(), repeats=5) -> dict:
@@ -76,7 +95,7 @@ def measure(config_path, data_dir, overrides=(), repeats=5) -> dict:
     rollout_s, rollout_compile = timed(rollout, *rollout_args, repeats=repeats)
     batch = rollout(*rollout_args)[1]
     update = jax.jit(trainer.ppo.update)                 # as the trainer compiles it
-    update_s, update_compile = timed(update, p, batch, state.key, repeats=repeats)
+    _, update_compile = timed(update, p, batch, state.key, repeats=0)   # timed below
     update_sim_s, _ = timed(jax.jit(trainer.ppo.update, compiler_options=options), p, batch,
                             state.key, repeats=repeats)
     # The iteration against the alternative the trainer does not take, the iteration as one
@@ -87,8 +106,15 @@ def measure(config_path, data_dir, overrides=(), repeats=5) -> dict:
     (iteration_s, fused_s), (iteration_compile, fused_compile) = timed_alternately(
         (lambda s: trainer.iteration(s)[1], fused), state, repeats=repeats)
     samples = config.run.samples_per_iteration
-    update_flop, matmul_rate = update_floor(
-        update, (p, batch, state.key), config.ppo.epochs * (samples // config.ppo.minibatch_size))
+    steps = config.ppo.epochs * (samples // config.ppo.minibatch_size)
+    flop = update_flop(update, (p, batch, state.key), steps)
+    size = 2048
+    square = jnp.ones((size, size), jnp.float32)
+    passes = network_passes(trainer, batch, steps, config.ppo.minibatch_size)
+    (update_s, passes_s, matmul_s), _ = timed_alternately(
+        (lambda: update(p, batch, state.key), lambda: passes(p.policy_params, p.value_params),
+         lambda: jnp.matmul(square, square)), repeats=max(repeats, 5))
+    matmul_rate = 2 * size ** 3 / matmul_s
     result = {"config": str(config_path), "overrides": list(overrides), "envs": config.run.envs,
               "steps_per_iteration": config.run.steps_per_iteration,
               "samples_per_iteration": samples,
@@ -97,8 +123,9 @@ def measure(config_path, data_dir, overrides=(), repeats=5) -> dict:
               "rollout_seconds": rollout_s, "update_seconds": update_s,
               "update_seconds_simulation_options": update_sim_s,
               "rollout_share": rollout_s / (rollout_s + update_s),
-              "update_gflop": update_flop / 1e9, "matmul_gflop_per_s": matmul_rate / 1e9,
-              "update_floor_seconds": update_flop / matmul_rate, "xla_options": options,
+              "update_gflop": flop / 1e9, "matmul_gflop_per_s": matmul_rate / 1e9,
+              "update_floor_seconds": flop / matmul_rate,
+              "update_network_passes_seconds": passes_s, "xla_options": options,
               "compile_seconds": {"rollout": rollout_compile, "update": update_compile,
                                   "iteration": iteration_compile,
                                   "one_program_iteration": fused_compile}}
