@@ -10,6 +10,11 @@ import numpy as np
 import pytest
 
 jax.config.update("jax_enable_x64", True)
+# One CPU device in the test processes, whatever a config's run.devices asks `takeoff train` for
+# (it asks only while the backend's device count is unset): which test first starts the backend
+# must not decide how many devices the rest of a worker's tests see. Tests of several devices
+# run in their own processes (tests/test_parallel_training.py).
+jax.config.update("jax_num_cpu_devices", 1)
 
 from agents import datadir  # noqa: E402  (after enabling float64)
 from jaxsim import characters, simulation  # noqa: E402

@@ -70,7 +70,8 @@ def _backend_started() -> bool:
 
 def start(devices: int, cluster: Cluster | None = None):
     """Before JAX's backend starts: join `cluster` (`jax.distributed.initialize`), and give
-    the CPU backend `devices` devices (0: one per core this process may run on), unless
+    the CPU backend `devices` devices (0: one per core this process may run on; one in a
+    process of a multi-process run that is not pinned to cores of its own), unless
     XLA_FLAGS or `jax_num_cpu_devices` already chose a number. Once the backend has started,
     neither can change (`mesh` then says what is missing)."""
     if cluster is not None and not jax.distributed.is_initialized():
@@ -83,6 +84,8 @@ def start(devices: int, cluster: Cluster | None = None):
             jax.distributed.initialize(cluster.coordinator, cluster.num_processes,
                                        cluster.process_id)
     wanted = devices or cpu_cores()
+    if cluster is not None and not devices and cpu_cores() == (os.cpu_count() or 1):
+        wanted = 1        # a process not pinned to its own cores shares them with the others
     from jax._src import xla_bridge
     if (1 < wanted <= MAX_CPU_DEVICES and not _backend_started()
             and xla_bridge.num_cpu_devices.value < 0
