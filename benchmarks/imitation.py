@@ -11,10 +11,11 @@
                                                     # minutes to the walk target for each network /
                                                     # epoch setting (SETTINGS), one after another
 
-The walk target (`WALK_TARGET_ITERATIONS`): the training episodes of that many iterations in a row
-have no fall (the env's `fell` metric is 0 over their 4096 samples each); the run is then stopped
-with Ctrl-C (it checkpoints) and its deterministic policy evaluated on 16 episodes, which must
-all reach the 10 s time limit.
+The walk target (`walk_target_reached`): in the last `WALK_TARGET_ITERATIONS` iterations in a row
+(40,960 control steps, about 137 ten-second episodes) the training episodes fell at most once
+(the env's `fell` metric counts falls per sample); the exploring policy's noise still trips it
+now and then long after it walks. The run is then stopped with Ctrl-C (it checkpoints) and its
+deterministic policy evaluated on 16 episodes, which must all reach the 10 s time limit.
 
 Needs the reference data (TAKEOFF_DATA, default ../shared/data).
 """
@@ -90,14 +91,13 @@ SETTINGS = {
 }
 
 
-def walk_target_reached(records) -> dict | None:
-    """The metrics record of the iteration that completes the walk target (see the module
-    docstring), or None."""
-    streak = 0
-    for record in records:
-        streak = streak + 1 if record.get("env/fell") == 0 else 0
-        if streak == WALK_TARGET_ITERATIONS:
-            return record
+def walk_target_reached(records, samples_per_iteration=4096) -> dict | None:
+    """The metrics record of the first iteration that completes the walk target (see the
+    module docstring), or None."""
+    falls = [round(r.get("env/fell", 1.0) * samples_per_iteration) for r in records]
+    for end in range(WALK_TARGET_ITERATIONS, len(records) + 1):
+        if sum(falls[end - WALK_TARGET_ITERATIONS:end]) <= 1:
+            return records[end - 1]
     return None
 
 

@@ -225,21 +225,32 @@ def markdown(rows, ratio_rows):
             f"Ratios of median time per call (same run)\n\n{ratio_table}\n")
 
 
-def cpu_model():
-    """The CPU's model name from /proc/cpuinfo ('' where there is none; platform.processor()
-    is often empty on Linux)."""
+def cpuinfo_field(name):
+    """The first value of `name` in /proc/cpuinfo ('' where there is none)."""
     try:
         with open("/proc/cpuinfo") as f:
             return next((line.split(":", 1)[1].strip() for line in f
-                         if line.startswith("model name")), "")
+                         if line.split(":", 1)[0].strip() == name), "")
     except OSError:
         return ""
 
 
+def cpu_model():
+    """The CPU's model name from /proc/cpuinfo ('' where there is none; platform.processor()
+    is often empty on Linux)."""
+    return cpuinfo_field("model name")
+
+
 def machine_info():
+    """What the figures were measured on: the CPU (its model name, family and model numbers,
+    which tell a VM's generation when the name is only "AMD EPYC", and its widest vectors),
+    the software and the devices."""
     return {
         "processor": platform.processor(),
         "cpu_model": cpu_model(),
+        "cpu_family": cpuinfo_field("cpu family"),
+        "cpu_model_number": cpuinfo_field("model"),
+        "vector_bits": xla_options.vector_bits(),
         "uname": platform.uname()._asdict(),
         "cpu_count": os.cpu_count(),
         "python": platform.python_version(),
