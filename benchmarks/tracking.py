@@ -267,7 +267,9 @@ def contact_scene(steps, torque_limits=False, batch_last=None, chunk=None):
     """The contact benchmark's setup: the humanoid (joints held by SPD, root free) dropped from
     5 cm onto the ground, maba, contacts and joint limits, 600 Hz, float32. Returns the model, its
     initial state and `rollout(states)`, `steps` steps of a batch of such states
-    (`simulation.simulate_batch`, its `batch_last` and `chunk` as given)."""
+    (`simulation.simulate_batch`, its `batch_last` and `chunk` as given, the batch split over
+    every device there is: run with XLA_FLAGS=--xla_force_host_platform_device_count=2 for
+    both cores)."""
     model = tracking.tracking_model(characters.humanoid(), root_gains=(0.0, 0.0))
     world = make_world(torque_limits=torque_limits)
     low, _ = characters.vertical_extent(model)
@@ -276,7 +278,8 @@ def contact_scene(steps, torque_limits=False, batch_last=None, chunk=None):
 
     def rollout(states):
         return simulation.simulate_batch(model, world, states, targets, 1 / 600,
-                                         batch_last=batch_last, chunk=chunk)[0]
+                                         batch_last=batch_last, chunk=chunk,
+                                         devices=jax.device_count())[0]
     return model, simulation.init_state(model, world, q0), rollout
 
 

@@ -257,18 +257,34 @@ def uses_batch_last(method: str, batch_last=None) -> bool:
     return method not in BATCH_FIRST_METHODS if batch_last is None else batch_last
 
 
-def batched(fun, method: str, batch_last=None, in_axes=0, chunk=None):
+def batched(fun, method: str, batch_last=None, in_axes=0, chunk=None, devices=1):
     """`fun` over a batch (axis 0 in and out), laid out as `uses_batch_last` chooses:
     `jaxsim.batch_last.vmap`, `chunk` members at a time (None: its default), or `jax.vmap`,
-    with `in_axes` 0 or None per argument."""
+    with `in_axes` 0 or None per argument; with `devices` > 1 the batch split evenly over the
+    first `devices` local devices, each computing its own share (`jax.shard_map`)."""
     if uses_batch_last(method, batch_last):
-        return batch_last_vmap(fun, in_axes=in_axes, chunk=chunk)
-    return jax.vmap(fun, in_axes=in_axes)
+        per_device = batch_last_vmap(fun, in_axes=in_axes, chunk=chunk)
+    else:
+        per_device = jax.vmap(fun, in_axes=in_axes)
+    if devices == 1:
+        return per_device
+    local = jax.local_devices()
+    if not 1 <= devices <= len(local):
+        raise ValueError(f"devices must be between 1 and the {len(local)} local devices; got "
+                         f"{devices}")
+    mesh = jax.sharding.Mesh(np.array(local[:devices]), ("batch",))
+    axes = in_axes if isinstance(in_axes, (tuple, list)) else (in_axes,)
+    P = jax.sharding.PartitionSpec
+    # (check_vma off: `batch_last` binds primitives itself, without the replication bookkeeping
+    # that check asks of each operation; every output is per device anyway)
+    return jax.shard_map(per_device, mesh=mesh,
+                         in_specs=tuple(P() if axis is None else P("batch") for axis in axes),
+                         out_specs=P("batch"), check_vma=False)
 
 
 def simulate_batch(model: Model, world: World, states: State, targets, dt, method: str = "maba",
                    substeps: int = 1, target_velocities=None, batch_last=None,
-                   check_result: bool = True, chunk=None):
+                   check_result: bool = True, chunk=None, devices: int = 1):
     """`simulate` for a batch of characters: states with a leading batch axis; targets (T, nq)
     shared by all or (batch, T, nq), target velocities likewise (T, nv) or (batch, T, nv); one
     model and world for all. Outputs carry the batch on axis 0.
@@ -278,7 +294,10 @@ def simulate_batch(model: Model, world: World, states: State, targets, dt, metho
     every method but those in `BATCH_FIRST_METHODS`. The results are the same either way.
     With the batch innermost, `chunk` members are simulated at once, the whole trajectory of one
     piece of the batch after another (`jaxsim.batch_last.vmap`; None: its measured default), so
-    that a large batch runs as fast per character as a small one.
+    that a large batch runs as fast per character as a small one. With `devices` > 1 the batch
+    is split over that many local devices (on the CPU, host devices: start Python with
+    XLA_FLAGS=--xla_force_host_platform_device_count=N), each simulating its own share; the
+    batch size must be a multiple of it.
 
     Inputs and results are checked as `simulate` checks them, the errors naming the batch
     members too; inside `jit`, `first_non_finite(trajectory)` gives one index per member.
@@ -292,23 +311,27 @@ def simulate_batch(model: Model, world: World, states: State, targets, dt, metho
             member = jax.ShapeDtypeStruct(shape[1:] if len(shape) == 3 else shape, float)
             check_layout(model, name, member, layout, leading="T")
     _check_inputs(model, "states", states, targets, dt, target_velocities, ("in batch member",))
+    size = states.q.shape[0]
+    if devices > 1 and size % devices:
+        raise ValueError(f"simulate_batch: a batch of {size} cannot be split evenly over "
+                         f"devices = {devices}")
     result = _simulate_batch(model, world, states, targets, dt, method, substeps,
                              target_velocities, batch_last,
-                             batch_last_lib.default_chunk() if chunk is None else chunk)
+                             batch_last_lib.default_chunk() if chunk is None else chunk, devices)
     if check_result:
         _check_trajectory(model, "simulate_batch", result[1], dt, substeps)
     return result
 
 
 @functools.partial(xla_options.jit,
-                   static_argnames=("method", "substeps", "batch_last", "chunk"))
+                   static_argnames=("method", "substeps", "batch_last", "chunk", "devices"))
 def _simulate_batch(model: Model, world: World, states: State, targets, dt,
                     method: str = "maba", substeps: int = 1, target_velocities=None,
-                    batch_last=None, chunk=None):
+                    batch_last=None, chunk=None, devices=1):
     def run(state, target, target_velocity):
         return _simulate(model, world, state, target, dt, method, substeps, target_velocity)
 
     def axis(value):
         return None if value is None or jnp.ndim(value) == 2 else 0
     return batched(run, method, batch_last, in_axes=(0, axis(targets), axis(target_velocities)),
-                   chunk=chunk)(states, targets, target_velocities)
+                   chunk=chunk, devices=devices)(states, targets, target_velocities)

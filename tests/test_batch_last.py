@@ -1,6 +1,11 @@
 """`jaxsim.batch_last.vmap` against `jax.vmap`: the same numbers from every rule, the simulator's
 step included, its gradients too, and clear errors."""
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -217,3 +222,38 @@ def test_a_bad_chunk_is_refused_clearly(monkeypatch):
         batch_last.default_chunk()
     monkeypatch.setenv(batch_last.CHUNK_VARIABLE, "64")
     assert batch_last.default_chunk() == 64
+
+
+TWO_DEVICES = r"""
+import jax
+import numpy as np
+from conftest import dropped_humanoids     # (float64; one CPU device, overridden here)
+jax.config.update("jax_num_cpu_devices", 2)
+from jaxsim import simulation
+assert jax.device_count() == 2
+model, world, states, targets = dropped_humanoids(10, 6, height=0.0005, jitter=True)
+one = simulation.simulate_batch(model, world, states, targets, 1 / 600, chunk=2)
+two = simulation.simulate_batch(model, world, states, targets, 1 / 600, chunk=2, devices=2)
+assert len(two[0].q.sharding.device_set) == 2
+assert bool(np.any(np.asarray(one[1].touching)))
+for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(two)):
+    np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=0, atol=1e-12)
+try:
+    simulation.simulate_batch(model, world, jax.tree.map(lambda x: x[:5], states), targets,
+                              1 / 600, devices=2)
+except ValueError as error:
+    assert "a batch of 5 cannot be split evenly over devices = 2" in str(error), error
+else:
+    raise AssertionError("an uneven split was accepted")
+print("ok")
+"""
+
+
+def test_a_batch_split_over_two_devices_gives_the_same_states():
+    """simulate_batch with the batch over two host devices (each chunking its own share) against
+    one device, in float64, in a process started with two CPU devices."""
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")}
+    tests = Path(__file__).resolve().parent
+    result = subprocess.run([sys.executable, "-c", TWO_DEVICES], cwd=tests, env=env,
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stderr[-3000:]
