@@ -272,14 +272,26 @@ def batched(fun, method: str, batch_last=None, in_axes=0, chunk=None, devices=1)
     if not 1 <= devices <= len(local):
         raise ValueError(f"devices must be between 1 and the {len(local)} local devices; got "
                          f"{devices}")
-    mesh = jax.sharding.Mesh(np.array(local[:devices]), ("batch",))
-    axes = in_axes if isinstance(in_axes, (tuple, list)) else (in_axes,)
+    return per_shard(per_device, jax.sharding.Mesh(np.array(local[:devices]), ("batch",)),
+                     in_axes)
+
+
+def per_shard(batched_fun, mesh, in_axes=0):
+    """`batched_fun` (arguments batched on axis 0, or not where `in_axes` is None; outputs
+    batched on axis 0) with each device of the one-axis `mesh` computing its own shard of the
+    batch (`jax.shard_map`), so what it does with its batch (`batch_last`'s chunks) is each
+    device's own. `in_axes`: 0 or None, or one of them per positional argument."""
     P = jax.sharding.PartitionSpec
+    (axis,) = mesh.axis_names
+
+    def spec(in_axis):
+        return P() if in_axis is None else P(axis)
+    specs = (tuple(spec(a) for a in in_axes) if isinstance(in_axes, (tuple, list))
+             else spec(in_axes))
     # (check_vma off: `batch_last` binds primitives itself, without the replication bookkeeping
-    # that check asks of each operation; every output is per device anyway)
-    return jax.shard_map(per_device, mesh=mesh,
-                         in_specs=tuple(P() if axis is None else P("batch") for axis in axes),
-                         out_specs=P("batch"), check_vma=False)
+    # that check asks of each operation; every output is per shard anyway)
+    return jax.shard_map(batched_fun, mesh=mesh, in_specs=specs, out_specs=P(axis),
+                         check_vma=False)
 
 
 def simulate_batch(model: Model, world: World, states: State, targets, dt, method: str = "maba",

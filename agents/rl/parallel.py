@@ -37,6 +37,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from agents.config import ConfigError
+from jaxsim import simulation
 
 AXIS = "envs"          # the mesh axis the environment batch is split along
 DEVICE_COUNT_FLAG = "xla_force_host_platform_device_count"
@@ -151,16 +152,9 @@ class Layout:
         self.replicated = NamedSharding(mesh_, PartitionSpec())
 
     def per_shard(self, batched, in_axes):
-        """`batched` (a function of arguments batched on axis 0, or not batched where `in_axes`
-        is None, with outputs batched on axis 0) computed by each device on its own shard of
-        the batch (`jax.shard_map`): for per-environment work, so what it does with its batch
-        (the simulator's chunks, `batch_last.vmap`) is each device's own."""
-        specs = tuple(PartitionSpec() if axis is None else PartitionSpec(AXIS)
-                      for axis in in_axes)
-        # (check_vma off: `batch_last` binds primitives itself, without the replication
-        # bookkeeping that check asks of each operation; every output is per shard anyway)
-        return jax.shard_map(batched, mesh=self.mesh, in_specs=specs,
-                             out_specs=PartitionSpec(AXIS), check_vma=False)
+        """`batched` computed by each device on its own shard of the batch
+        (`jaxsim.simulation.per_shard` over the run's mesh): for per-environment work."""
+        return simulation.per_shard(batched, self.mesh, in_axes)
 
     def spread_samples(self, minibatches):
         """PPO's shuffled minibatches (n_minibatches, minibatch, …) with each minibatch's
