@@ -24,6 +24,15 @@ is a `SearchError` naming the file and record, and a log cut off before its head
 holds nothing and starts afresh. A search that fails before its first evaluation is logged
 removes the log it created.
 
+Failures: a black box may return `Failure(reason)` for an x that produced no strategy (a jump
+training that never cleared the lowest bar). It is logged with `"feature": null` and its reason,
+and no feature is made up for it: the GP is fitted to the successful evaluations alone, and each
+failed x is then added as a visited point whose outcome is the model's own prediction there (the
+batched rounds' "kriging believer" device), which leaves the posterior mean unchanged and lowers
+the posterior variance around it — so exploration does not go back to a failed x, while the
+diversity acquisition compares only real features. Until a first evaluation succeeds there is no
+model, and the model-based picks are random points (logged as kind "random").
+
 Every random choice comes from the seed and the index of the pick, so the same settings give the
 same search on the same machine.
 """
@@ -58,6 +67,13 @@ ROTATION_DIM = 3                # the feature size the "rotation" distance takes
 class SearchError(ValueError):
     """A search log or a black-box output the search cannot use; the message names the file and
     line, or the evaluation."""
+
+
+class Failure(NamedTuple):
+    """What a black box returns for an x whose evaluation produced no strategy (e.g. a jump
+    training that never cleared the lowest bar), with why. The search logs it (`"feature":
+    null, "failure": reason`) and never gives the GP a feature for it; see `plan_round`."""
+    reason: str
 
 
 @dataclass(frozen=True)
@@ -138,8 +154,9 @@ class SearchSettings:
 
 class SearchResult(NamedTuple):
     x: np.ndarray              # (n, d) evaluated points, in the user's box
-    features: np.ndarray       # (n, m)
+    features: np.ndarray       # (n, m); rows of NaN for failures
     kinds: list
+    failures: list             # per evaluation: its Failure's reason, or None (a feature)
 
 
 def check_bounds(lower, upper):
@@ -210,34 +227,52 @@ def _pick(settings, kind, posterior, observed_f, observed_mask, dim, key):
                   max_evaluations=settings.direct_evaluations).x
 
 
-def plan_round(settings, first_index, count, x_unit, features, dim):
+def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=None):
     """The next `count` points (unit box, d = dim) for picks first_index, first_index + 1, …,
-    given the evaluated x_unit (n, d) and features (n, m). Returns (points, kinds)."""
+    given the successful evaluations x_unit (n, d) with their features (n, m) and the failed
+    ones' points failed_unit (k, d). Returns (points, kinds)."""
     kinds = [settings.kind(first_index + j) for j in range(count)]
+    if not len(x_unit):                 # nothing to model yet: every pick is a random point
+        kinds = [kind if kind == "initial" else "random" for kind in kinds]
     if all(kind in ("initial", "random") for kind in kinds):
         return [_random_point(settings, first_index + j, dim) for j in range(count)], kinds
+    failed_unit = np.zeros((0, dim)) if failed_unit is None else np.asarray(failed_unit)
     n = len(x_unit)
-    capacity = CAPACITY_STEP * math.ceil((n + count) / CAPACITY_STEP)
+    capacity = CAPACITY_STEP * math.ceil((n + len(failed_unit) + count) / CAPACITY_STEP)
     mask = np.arange(capacity) < n
     xs, fs = _padded(x_unit, capacity), _padded(features, capacity)
     key = jax.random.fold_in(jax.random.PRNGKey(settings.seed), first_index)
     prior_mean, min_scale = settings.feature_prior(fs.shape[1])
     posterior = gp.fit(xs, fs, mask, prior_mean=prior_mean, key=key,
                        restarts=settings.gp_restarts, steps=settings.gp_steps, min_scale=min_scale)
+    visited = n
+
+    def believe(point):
+        """Add `point` as visited, its outcome the model's prediction there (see the module
+        docstring): the posterior mean stays, its variance there drops."""
+        nonlocal posterior, visited
+        believed, _ = gp.predict(posterior, jnp.asarray(point)[None])
+        xs[visited], fs[visited], mask[visited] = point, np.asarray(believed)[0], True
+        visited += 1
+        posterior = gp.condition(posterior, jnp.asarray(xs), jnp.asarray(fs), jnp.asarray(mask))
+
+    for point in failed_unit:
+        believe(point)
+    real = np.arange(capacity) < n
     picks = []
     for j, kind in enumerate(kinds):
         index = first_index + j
         if kind in ("initial", "random"):
             point = _random_point(settings, index, dim)
         else:
-            point = _pick(settings, kind, posterior, jnp.asarray(fs), jnp.asarray(mask), dim,
-                          jax.random.fold_in(key, index))
+            # The diversity acquisition compares against the real features and, in a batched
+            # round, the pending points' believed ones — never a failure's.
+            pending = mask & (np.arange(capacity) >= n + len(failed_unit))
+            point = _pick(settings, kind, posterior, jnp.asarray(fs), jnp.asarray(real | pending),
+                          dim, jax.random.fold_in(key, index))
         picks.append(point)
         if j + 1 < count:                         # fantasise the pending point's outcome
-            believed, _ = gp.predict(posterior, jnp.asarray(point)[None])
-            xs[n + j], fs[n + j], mask[n + j] = point, np.asarray(believed)[0], True
-            posterior = gp.condition(posterior, jnp.asarray(xs), jnp.asarray(fs),
-                                     jnp.asarray(mask))
+            believe(point)
     return picks, kinds
 
 
@@ -300,7 +335,8 @@ def _contents(path, records):
         if event == "plan":
             plans[record["first_index"]] = (record["points"], record["kinds"])
         else:
-            feature_size = len(record["feature"])
+            if record["feature"] is not None:
+                feature_size = len(record["feature"])
             evaluations[record["index"]] = record
     return plans, evaluations
 
@@ -340,6 +376,13 @@ def _check_evaluation(record, lower, upper, feature_size):
     x = np.asarray(record["x"])
     if np.any(x < lower - 1e-9 * (upper - lower)) or np.any(x > upper + 1e-9 * (upper - lower)):
         return f"x {record['x']} lies outside the search's box"
+    failure = record.get("failure")
+    if failure is not None:
+        if not (isinstance(failure, str) and failure):
+            return f"failure {failure!r} is not a reason (a non-empty string) or null"
+        if record.get("feature") is not None:
+            return f"feature {record['feature']!r} is given for a failure (it must be null)"
+        return ""
     if not _numbers(record.get("feature"), feature_size):
         return (f"feature {record.get('feature')!r} is not "
                 f"{feature_size or 'a list of'} finite numbers")
@@ -444,23 +487,31 @@ class _Evaluation:
     def __call__(self, index, point_unit, kind):
         x = gp.from_unit(np.asarray(point_unit), self.lower, self.upper)
         start = time.perf_counter()
-        feature = _feature(self.g(x), index, x)
-        return {"index": index, "kind": kind, "x": x.tolist(), "feature": feature.tolist(),
-                "seconds": time.perf_counter() - start}
+        evaluate = getattr(self.g, "evaluate", None)
+        outcome = self.g(x) if evaluate is None else evaluate(index, x)
+        if isinstance(outcome, Failure):
+            feature, failure = None, str(outcome.reason) or "failed (no reason given)"
+        else:
+            feature, failure = _feature(outcome, index, x).tolist(), None
+        return {"index": index, "kind": kind, "x": x.tolist(), "feature": feature,
+                "failure": failure, "seconds": time.perf_counter() - start}
 
 
 def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(), log=None,
            workers=1, progress=None, executor: Executor | None = None) -> SearchResult:
     """Run (or resume) a search for diverse features of the black box g over [lower, upper].
 
-    g(x) takes a point (d,) of the box and returns its feature (a number or (m,) numbers).
+    g(x) takes a point (d,) of the box and returns its feature (a number or (m,) numbers), or
+    a `Failure` when x produced no strategy (see the module docstring). A black box that keeps
+    something per evaluation (a training's run directory, which a resumed search must find
+    again) has instead a method `evaluate(index, x)`, given the evaluation's index.
     `log` is the JSONL file to append to (None: keep nothing). A round's points are evaluated
     by `executor` (an `jaxsim.executor.Executor`, which the caller closes), else, with
     `workers` > 1, in that many local worker processes (`LocalProcesses`: g must then be
     picklable, a module-level function or object rather than a lambda or closure, and it runs
     in another process, so it cannot change this one's state), else one after another in this
     process. The log is the same however they run. `progress(record)` is called after every
-    evaluation is logged, with its log record (index, kind, x, feature, seconds).
+    evaluation is logged, with its log record (index, kind, x, feature, failure, seconds).
 
     When g (or a check of its output) raises, or the search is interrupted, the evaluations of
     the round that did finish are logged, those not finished are dropped, and the error
@@ -475,22 +526,17 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
     record_log = SearchLog(log, header)
 
     def history():
+        """(x_unit, features) of the successful evaluations and x_unit of the failed ones."""
         done = [record_log.evaluations[i] for i in sorted(record_log.evaluations)]
-        x = gp.to_unit(np.array([r["x"] for r in done]).reshape(-1, dim), lower, upper)
-        f = np.array([r["feature"] for r in done])
-        return x, f
+        unit = lambda records: gp.to_unit(np.array([r["x"] for r in records]).reshape(-1, dim),
+                                          lower, upper)
+        good = [r for r in done if r["feature"] is not None]
+        return (unit(good), np.array([r["feature"] for r in good]),
+                unit([r for r in done if r["feature"] is None]))
 
     def finish(record):
-        earlier = next(iter(record_log.evaluations.values()), None)
-        if earlier is not None and len(earlier["feature"]) != len(record["feature"]):
-            raise SearchError(f"evaluation {record['index']} at x = {record['x']} returned "
-                              f"{len(record['feature'])} numbers; earlier evaluations returned "
-                              f"{len(earlier['feature'])}")
-        try:
-            settings.check_feature_dim(len(record["feature"]))
-        except ValueError as error:
-            raise SearchError(f"evaluation {record['index']} at x = {record['x']}: "
-                              f"{error}") from None
+        if record["feature"] is not None:
+            _check_feature_size(record, record_log, settings)
         record_log.add_evaluation(record)
         if progress is not None:
             progress(record)
@@ -508,8 +554,26 @@ def search(g: Callable, lower, upper, settings: SearchSettings = SearchSettings(
         if owned:
             executor.close()
     done = [record_log.evaluations[i] for i in range(settings.budget)]
-    return SearchResult(np.array([r["x"] for r in done]), np.array([r["feature"] for r in done]),
-                        [r["kind"] for r in done])
+    size = next((len(r["feature"]) for r in done if r["feature"] is not None), 1)
+    features = np.array([r["feature"] if r["feature"] is not None else [np.nan] * size
+                         for r in done])
+    return SearchResult(np.array([r["x"] for r in done]), features, [r["kind"] for r in done],
+                        [r.get("failure") for r in done])
+
+
+def _check_feature_size(record, record_log, settings):
+    """A SearchError when a successful evaluation's feature has another size than the earlier
+    ones', or one the settings cannot use."""
+    earlier = next((r for r in record_log.evaluations.values() if r["feature"] is not None),
+                   None)
+    if earlier is not None and len(earlier["feature"]) != len(record["feature"]):
+        raise SearchError(f"evaluation {record['index']} at x = {record['x']} returned "
+                          f"{len(record['feature'])} numbers; earlier evaluations returned "
+                          f"{len(earlier['feature'])}")
+    try:
+        settings.check_feature_dim(len(record["feature"]))
+    except ValueError as error:
+        raise SearchError(f"evaluation {record['index']} at x = {record['x']}: {error}") from None
 
 
 def _run_rounds(settings, record_log, history, evaluate, finish, dim, executor):
@@ -521,8 +585,9 @@ def _run_rounds(settings, record_log, history, evaluate, finish, dim, executor):
             points, kinds = record_log.plans[first]
             points, kinds = points[:count], kinds[:count]
         else:
-            x_unit, features = history()
-            points, kinds = plan_round(settings, first, count, x_unit, features, dim)
+            x_unit, features, failed_unit = history()
+            points, kinds = plan_round(settings, first, count, x_unit, features, dim,
+                                       failed_unit)
             points = [np.asarray(p).tolist() for p in points]
             record_log.add_plan(first, points, kinds)
         todo = [first + j for j in range(len(points))

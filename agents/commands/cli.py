@@ -71,7 +71,8 @@ def _cmd_search(args):
     from jaxsim.runlog import LogError
 
     try:
-        strategy_search.run(args.config, args.out, args.set, args.workers)
+        strategy_search.run(args.config, args.out, args.set, args.workers,
+                            data_dir=args.data_dir)
     except (ConfigError, SearchError, OutputError, LogError, ExecutorError) as error:
         raise SystemExit(f"takeoff search: {error}")
 
@@ -264,6 +265,7 @@ def build_parser():
                    help="evaluate a round's points in this many worker processes at once (or "
                         "Ray tasks, with [executor] backend = \"ray\"); overrides the config's "
                         "executor.workers")
+    p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_search)
     p = sub.add_parser("pvae", help="the pose VAE: build its dataset from motion capture, train it")
     pvae_sub = p.add_subparsers(dest="pvae_command", metavar="STEP", required=True)

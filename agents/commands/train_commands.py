@@ -14,9 +14,10 @@ import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from agents import config as config_io
@@ -288,10 +289,20 @@ def _get(sections, key):
     return sections[section][name]
 
 
-def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=print):
-    """Run the deterministic policy (the Gaussian's mean) for `episodes` episodes from random
-    starts; report the mean return, length and task metrics over each first episode. Returns
-    the summary, the environment and the poses of episode 0 (steps, nq)."""
+class Episodes(NamedTuple):
+    """Deterministic evaluation episodes of a trained policy (`run_episodes`)."""
+    summary: dict          # means over each environment's first episode (see `evaluate`)
+    outcomes: dict         # per environment: each `episode/` metric where its first episode ended
+    env: object            # the environment, at the difficulty evaluated
+    poses: np.ndarray      # (steps, nq) of environment 0's first episode, one per control step
+    task: dict             # environment 0's task values at its reset (to draw its world)
+
+
+def run_episodes(run_dir, episodes: int = 8, data_dir=None, difficulty=None, echo=print,
+                 check_writable_path=None) -> Episodes:
+    """Run the deterministic policy (the Gaussian's mean) of the run in `run_dir` for one
+    episode in each of `episodes` environments, at the run's curriculum difficulty or at
+    `difficulty` (the jump tasks' bar height / obstacle width)."""
     config = load_run_config(run_dir)
     config = dataclasses.replace(config, run=dataclasses.replace(config.run, devices=1))
     source = Path(run_dir) / CONFIG            # (evaluation runs on one device, however the
@@ -299,11 +310,18 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     env = trainer.env_for(trainer.curriculum.init())
     state_bytes, sample_bytes = trainer.footprint(episodes, env.episode_steps)
     _check_memory(state_bytes + sample_bytes, source, f"--episodes {episodes}")
-    if render_path is not None:
-        check_writable(Path(render_path).parent, what="the animation")
+    if check_writable_path is not None:
+        check_writable(Path(check_writable_path).parent, what="the animation")
     state = trainer_lib.load_checkpoint(trainer.init(), run_dir, echo)
-    env = trainer.env_for(state.curriculum)          # at the run's difficulty
-    params = trainer.env_params_for(state.curriculum, episodes)
+    curriculum = state.curriculum
+    if difficulty is not None:
+        if not isinstance(curriculum, dict) or "difficulty" not in curriculum:
+            raise config_io.ConfigError(f"{source}: this run's task has no difficulty to "
+                                        "evaluate at")
+        curriculum = {**curriculum, "difficulty": jnp.asarray(
+            difficulty, jnp.asarray(curriculum["difficulty"]).dtype)}
+    env = trainer.env_for(curriculum)                # at the difficulty evaluated
+    params = trainer.env_params_for(curriculum, episodes)
     rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply,
                                    env.episode_steps, deterministic=True, keep_physics=True,
                                    params_axis=0),
@@ -324,16 +342,26 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
                "terminated": float((np.asarray(batch.terminated) * first).any(0).mean()),
                **{k: _mean(np.asarray(v), at_end if k.startswith("episode/") else first)
                   for k, v in metrics.items()}}
+    outcomes = {k: np.where(at_end.any(0), (np.asarray(v) * at_end).sum(0), np.nan)
+                for k, v in metrics.items() if k.startswith("episode/")}
+    task = jax.tree_util.tree_map(lambda x: x[0], runner.envs.task)
+    return Episodes(summary, outcomes, env, np.asarray(physics.q)[:int(steps[0]), 0], task)
+
+
+def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=print):
+    """Run the deterministic policy (the Gaussian's mean) for `episodes` episodes from random
+    starts; report the mean return, length and task metrics over each first episode. Returns
+    the summary, the environment and the poses of episode 0 (steps, nq)."""
+    summary, _, env, poses, task = run_episodes(run_dir, episodes, data_dir, echo=echo,
+                                                check_writable_path=render_path)
     broken = sorted(k for k, v in summary.items() if v is not None and not np.isfinite(v))
     echo(json.dumps({k: v if k not in broken else None for k, v in summary.items()}, indent=2))
     if broken:
         raise trainer_lib.TrainingError(
             f"{run_dir}: the evaluation's {', '.join(broken)} came out non-finite (shown as "
             "null above)")
-    poses = np.asarray(physics.q)[:int(steps[0]), 0]
     if render_path is not None:
         from jaxsim import render
-        task = jax.tree_util.tree_map(lambda x: x[0], runner.envs.task)     # episode 0's
         world = env.world_for(task) if hasattr(env, "world_for") else env.world
         render.animation(env.model, poses, render_path, world=world, fps=1.0 / env.control_dt,
                          times=env.control_dt * np.arange(1, len(poses) + 1),

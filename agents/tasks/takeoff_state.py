@@ -79,6 +79,7 @@ OBSTACLE_ROWS = {
 }
 HIGHJUMP_BOUNDS = ((-np.pi / 6, -3.0, -3.0, -2.4), (2 * np.pi / 3, 3.0, 3.0, -0.5))
 OBSTACLE_BOUNDS = ((-3.0, -3.0, -4.0), (3.0, 3.0, 4.0))
+BOUNDS = {"highjump": HIGHJUMP_BOUNDS, "obstacle": OBSTACLE_BOUNDS}     # by task
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,203 @@
+"""The real black box of strategy discovery (thesis §3.5.1, Algorithm 1 line 9): g(x) trains a jump
+policy from the take-off state x and returns the Stage-1 strategy feature of what it learned.
+
+One evaluation, in its own directory `<search>/evaluations/NNN/` (NNN its index in the search):
+
+1. Train (`takeoff train` with the config `[jump].train`, its task's `takeoff` set to x) with the
+   curriculum from z_min until the bar reaches z_freeze, or the budget (`samples`, and `minutes`
+   of training when given) is spent, whichever comes first. The run directory is `train/`; an
+   evaluation killed mid-training resumes from its last checkpoint (the budget counts the
+   training minutes its metrics log already holds).
+2. Measure: the deterministic policy's episodes at the height the training reached; if most of
+   them fail there, at z_min. The evaluation succeeds when most episodes clear the bar at one of
+   the two; its feature is then the mean, over the clearing episodes, of `up_angle` (the angle
+   between the root's facing direction and the up axis where the centre of mass crosses the bar
+   plane, §3.6.1; `agents.tasks.jump`) and its highest bar cleared is that height. Otherwise it
+   is a failure (`bds.search.Failure`, with why), which the search logs without a feature.
+3. Keep: `result.json` (x, outcome, reason, feature, the 3-D root orientation at the crossing
+   for Stage 2, heights, samples, minutes), `episode.npz` (the poses of one evaluated episode
+   at its control steps) and `peak.png` (the peak pose along and across the bar).
+
+`result.json` is written last, atomically: an evaluation whose result is there is not trained or
+measured again (a search killed after it and before its log line returns it as it was).
+"""
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bds.search import Failure, SearchError
+from jaxsim.atomic import atomic_path, write_text_atomic
+
+EVALUATIONS = "evaluations"
+TRAIN, RESULT, EPISODE, PEAK = "train", "result.json", "episode.npz", "peak.png"
+MAJORITY = 0.5              # share of the evaluation episodes that must clear the bar
+DIFFICULTY_TOLERANCE = 1e-5
+
+
+@dataclass(frozen=True)
+class JumpBlackBoxSettings:
+    """The `[jump]` section of a search config whose black box is a jump task."""
+
+    train: str = "configs/highjump.toml"    # the training config of every evaluation
+    set: tuple[str, ...] = ()               # its overrides, as `takeoff train --set`
+    samples: int = 2_000_000                # training budget per evaluation (samples)
+    minutes: float = 0.0                    # and (when > 0) training minutes
+    z_freeze: float = 0.0                   # where training stops; 0: the task's own z_freeze
+    episodes: int = 4                       # deterministic evaluation episodes
+
+    def __post_init__(self):
+        if self.samples < 1:
+            raise ValueError(f"samples must be at least 1; got {self.samples}")
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be at least 1; got {self.episodes}")
+        for name in ("minutes", "z_freeze"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be ≥ 0; got {getattr(self, name)}")
+
+
+def evaluation_dir(search_dir, index: int) -> Path:
+    """Where evaluation `index` of the search in `search_dir` keeps its files."""
+    return Path(search_dir) / EVALUATIONS / f"{index:03d}"
+
+
+def read_result(directory) -> dict | None:
+    """An evaluation directory's result.json (None when it has none yet)."""
+    path = Path(directory) / RESULT
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise SearchError(f"{path}: unreadable ({error}); delete it to evaluate again") from None
+
+
+def outcome(result: dict):
+    """What g(x) returns for a result: its feature, or its Failure."""
+    if result["outcome"] == "failure":
+        return Failure(result["reason"])
+    return np.array([result["feature"]["up_angle"]])
+
+
+@dataclass(frozen=True, eq=False)
+class JumpBlackBox:
+    """g(x) of a jump task (see the module docstring); picklable, so worker processes can run
+    it. `kind` is the training config's task ("highjump" or "obstacle")."""
+
+    settings: JumpBlackBoxSettings
+    search_dir: Path
+    data_dir: Path | None = None
+
+    def _overrides(self, x, train_commands):
+        """The training config's overrides for the evaluation at x."""
+        base = train_commands.load_config(self.settings.train, self.settings.set)
+        kind = base.run.task
+        z_freeze = self.settings.z_freeze or base.task.z_freeze
+        iterations = math.ceil(self.settings.samples / base.run.samples_per_iteration)
+        return [*self.settings.set, f"{kind}.takeoff={[float(v) for v in x]}",
+                f"run.stop_difficulty={z_freeze}", f"run.iterations={iterations}",
+                f"run.time_limit_minutes={self.settings.minutes}"]
+
+    def evaluate(self, index: int, x) -> np.ndarray | Failure:
+        directory = evaluation_dir(self.search_dir, index)
+        x = np.asarray(x, float)
+        done = read_result(directory)
+        if done is not None:
+            if not np.allclose(done["x"], x, rtol=0, atol=1e-9):
+                raise SearchError(f"{directory / RESULT} holds the evaluation of x = "
+                                  f"{done['x']}, but this search's evaluation {index} is at "
+                                  f"x = {x.tolist()}; the directory belongs to another search")
+            return outcome(done)
+        self._train(directory / TRAIN, x)
+        return outcome(self._measure(directory, index, x))
+
+    def _train(self, run_dir: Path, x):
+        from agents.commands import train_commands
+        from agents.rl import trainer as trainer_lib
+        echo = _prefixed(f"  [g {run_dir.parent.name}] ")
+        if not (run_dir / trainer_lib.CHECKPOINT).exists():
+            train_commands.train(self.settings.train, run_dir, self._overrides(x, train_commands),
+                                 data_dir=self.data_dir, echo=echo)
+            return
+        config = train_commands.load_run_config(run_dir)
+        if not np.allclose(config.sections()[config.run.task]["takeoff"], x, atol=1e-6):
+            raise SearchError(f"{run_dir} trains from another take-off state than x = "
+                              f"{x.tolist()}; the directory belongs to another search")
+        records = trainer_lib.read_metrics(run_dir)
+        last = records[-1] if records else {}
+        minutes_left = self.settings.minutes - last.get("seconds", 0.0) / 60
+        if (last.get("iteration", 0) >= config.run.iterations
+                or last.get(trainer_lib.DIFFICULTY, -1) >= config.run.stop_difficulty
+                - DIFFICULTY_TOLERANCE
+                or (self.settings.minutes and minutes_left <= 0)):
+            return                                      # its budget was spent before the kill
+        limit = max(minutes_left, 1e-3) if self.settings.minutes else 0.0
+        train_commands.train(resume=run_dir, overrides=[f"run.time_limit_minutes={limit}"],
+                             data_dir=self.data_dir, echo=echo)
+
+    def _measure(self, directory: Path, index: int, x) -> dict:
+        """Evaluate the trained policy (see the module docstring), keep its files, return its
+        result."""
+        from agents.commands import train_commands
+        from agents.rl import trainer as trainer_lib
+        run_dir = directory / TRAIN
+        config = train_commands.load_run_config(run_dir)
+        task_settings = config.sections()[config.run.task]
+        z_min = task_settings["z_min"]
+        quiet = lambda *_: None
+        episodes = train_commands.run_episodes(run_dir, self.settings.episodes, self.data_dir,
+                                               echo=quiet)
+        reached = float(episodes.summary["episode/difficulty"])
+        cleared = _cleared(episodes)
+        if cleared.mean() <= MAJORITY and reached > z_min + DIFFICULTY_TOLERANCE:
+            episodes = train_commands.run_episodes(run_dir, self.settings.episodes,
+                                                   self.data_dir, difficulty=z_min, echo=quiet)
+            cleared = _cleared(episodes)
+        records = trainer_lib.read_metrics(run_dir)
+        last = records[-1]
+        height = float(episodes.summary["episode/difficulty"])
+        result = {"index": index, "x": x.tolist(), "task": config.run.task,
+                  "reached": reached, "samples": int(last["samples"]),
+                  "minutes": last["seconds"] / 60, "iterations": int(last["iteration"]),
+                  "training_success": last.get("env/episode/success"),
+                  "episodes": self.settings.episodes, "cleared_share": float(cleared.mean()),
+                  "evaluated_at": height}
+        if cleared.mean() > MAJORITY:
+            o = episodes.outcomes
+            result.update(outcome="success", reason=None, highest_cleared=height, feature={
+                "up_angle": float(np.mean(o["episode/up_angle"][cleared])),
+                "cross_rotvec": [float(np.mean(o[f"episode/cross_rotvec_{a}"][cleared]))
+                                 for a in "xyz"],
+                "clearance": float(np.mean(o["episode/clearance"][cleared])),
+                "peak_com": float(np.mean(o["episode/peak_com"][cleared]))})
+        else:
+            result.update(outcome="failure", highest_cleared=None, feature=None, reason=(
+                f"the deterministic policy cleared {int(cleared.sum())} of {cleared.size} "
+                f"episodes at {height:.2f} m after {result['samples']:,} training samples "
+                f"({result['minutes']:.0f} min); in its last training iteration "
+                f"{100 * (result['training_success'] or 0):.0f}% of the episodes succeeded"))
+        _keep_episode(directory, episodes, height)
+        write_text_atomic(directory / RESULT, json.dumps(result, indent=2) + "\n")
+        return result
+
+
+def _cleared(episodes) -> np.ndarray:
+    return np.asarray(episodes.outcomes["episode/success"]) > 0.5
+
+
+def _keep_episode(directory: Path, episodes, height: float):
+    """episode.npz and peak.png of the evaluated episode 0."""
+    from agents.discovery import pictures
+    env, poses = episodes.env, episodes.poses
+    with atomic_path(directory / EPISODE) as path:
+        with open(path, "wb") as f:
+            np.savez(f, poses=poses, control_dt=env.control_dt, difficulty=height,
+                     takeoff=np.asarray(episodes.task["takeoff"]))
+    pictures.peak_views(env, poses, episodes.task, directory / PEAK)
+
+
+def _prefixed(prefix):
+    return lambda text="": print("\n".join(prefix + line for line in str(text).split("\n")))
