@@ -158,7 +158,7 @@ def _nearest_on_segment(a, b, center, rotation, half_size):
     constant for differentiation (the derivative of a minimum is the partial derivative at the
     minimiser), which keeps gradients exact and finite."""
     a, b = jax.lax.stop_gradient(a), jax.lax.stop_gradient(b)
-    ratio = (np.sqrt(5.0) - 1.0) / 2.0
+    ratio = float((np.sqrt(5.0) - 1.0) / 2.0)    # (a Python float: keeps a float32 model float32)
 
     def distance(t):
         return box_distance(a + t[..., None] * (b - a), center, rotation, half_size)[0]

@@ -284,9 +284,8 @@ class JumpEnv:
                                     settings.spine), "feet, torso, head or spine")
         self.clip_path = common.data_file(settings.clip, data / "jump" / "motions", "clip")
         clip = motion.load_motion(self.clip_path, model)
-        self.takeoff = takeoff_state.find_takeoff(model, clip, settings.feet, settings.clip)
-        q0, qd0 = takeoff_state.clip_state(model, clip, self.takeoff.time)
-        q0 = takeoff_state.grounded(model, q0, self.takeoff.foot)
+        self.takeoff, q0, qd0 = takeoff_state.takeoff_start(model, clip, settings.feet,
+                                                            settings.clip)
         self.q0, self.qd0 = q0.astype(dtype), qd0.astype(dtype)
         self.model = self._varied(model)
         self.heading = takeoff_state.heading_rotation(rotations.quat_to_matrix(self.q0[3:7]))

@@ -144,8 +144,9 @@ def from_model_clip(model: Model, clip: Clip, frame_rate: float) -> SkeletonClip
     skeleton = model_skeleton(model)
     n_frames = int(np.floor(float(clip.duration) * frame_rate + 1e-9)) + 1
     times = np.arange(n_frames) / frame_rate
-    poses = jax.vmap(lambda t: sample_pose(clip, t))(np.asarray(times, clip.poses.dtype))
-    local_rot, local_pos = jax.vmap(lambda q: kinematics.local_poses(model, q))(poses)
+    # (compiled: the first call of a process took 20 s op by op, 4 s so)
+    poses = jax.jit(jax.vmap(sample_pose, (None, 0)))(clip, np.asarray(times, clip.poses.dtype))
+    local_rot, local_pos = jax.jit(jax.vmap(kinematics.local_poses, (None, 0)))(model, poses)
     joint_rot = np.asarray(model.joint_rot, float)
     rotations = np.swapaxes(joint_rot, -1, -2)[None] @ np.asarray(local_rot, float)
     root_positions = np.asarray(local_pos[:, 0], float)
