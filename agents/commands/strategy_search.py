@@ -3,12 +3,15 @@
 The config file (see configs/search_landscape.toml, configs/highjump_bds.toml):
 
     black_box = "jump"            # what g(x) is: "jump" (train a jump policy from x,
-                                  # agents.discovery.jump_black_box), or "landscape" (a
-                                  # synthetic strategy landscape, for tests and benchmarks)
+                                  # agents.discovery.jump_black_box), "ballistic" (the take-off
+                                  # state's held-pose flight, agents.tasks.ballistic: no
+                                  # learning, milliseconds) or "landscape" (a synthetic
+                                  # strategy landscape); the last two for tests and benchmarks
     same_strategy = 0.5236        # features this close are one strategy (bds.strategies);
                                   # 0: the feature's default (π/6 for the jumps' up angle)
     [search]                      # bds.search.SearchSettings
     [jump]                        # agents.discovery.jump_black_box.JumpBlackBoxSettings
+    [ballistic]                   # task = "highjump" or "obstacle"
     [landscape]                   # bds.landscapes.LandscapeSettings
     [box]                         # optional lower/upper bounds of x (default: the unit box for a
                                   # landscape, the task's take-off-state bounds for a jump)
@@ -40,7 +43,7 @@ from bds.search import SearchSettings, check_bounds, logged_evaluations, search
 from jaxsim.atomic import check_writable, write_text_atomic
 from jaxsim.executor import ExecutorSettings, executor_from
 
-BLACK_BOXES = ("landscape", "jump")
+BLACK_BOXES = ("landscape", "ballistic", "jump")
 # The config keys a resumed search may change: its budget, where it runs, how its summary
 # groups strategies.
 RESUMABLE = ("search.budget", "same_strategy",
@@ -54,12 +57,18 @@ class Box:
 
 
 @dataclass(frozen=True)
+class BallisticSettings:
+    task: str = "highjump"            # whose take-off states fly
+
+
+@dataclass(frozen=True)
 class SearchConfig:
     black_box: str = "landscape"
     same_strategy: float = 0.0
     search: SearchSettings = field(default_factory=SearchSettings)
     landscape: LandscapeSettings = field(default_factory=LandscapeSettings)
     jump: JumpBlackBoxSettings = field(default_factory=JumpBlackBoxSettings)
+    ballistic: BallisticSettings = field(default_factory=BallisticSettings)
     box: Box = field(default_factory=Box)
     executor: ExecutorSettings = field(default_factory=ExecutorSettings)
 
@@ -85,7 +94,10 @@ class SearchConfig:
                              f"{feature_dim} numbers: {error}") from None
 
     def task(self) -> str:
-        """The jump task the `jump` black box trains ("highjump" or "obstacle")."""
+        """The jump task of a `jump` black box (the one its training config trains) or of a
+        `ballistic` one: "highjump" or "obstacle"."""
+        if self.black_box == "ballistic":
+            return self.ballistic.task
         from agents.commands import train_commands
         return train_commands.load_config(self.jump.train, self.jump.set).run.task
 
@@ -97,8 +109,9 @@ class SearchConfig:
     def _task_bounds(self):
         task = self.task()
         if task not in takeoff_state.BOUNDS:
-            raise ValueError(f"jump.train trains the task {task!r}, which has no take-off "
-                             f"states to search; use one of {', '.join(takeoff_state.BOUNDS)}")
+            key = "ballistic.task is" if self.black_box == "ballistic" else "jump.train trains"
+            raise ValueError(f"{key} the task {task!r}, which has no take-off states to "
+                             f"search; use one of {', '.join(takeoff_state.BOUNDS)}")
         return takeoff_state.BOUNDS[task]
 
     def bounds(self):
@@ -135,6 +148,9 @@ def black_box(config: SearchConfig, out_dir=None, data_dir=None):
     if config.black_box == "landscape":
         return LandscapeBlackBox(StrategyLandscape(config.landscape), *config.bounds())
     from agents.datadir import data_dir_from
+    if config.black_box == "ballistic":
+        from agents.tasks.ballistic import BallisticBlackBox
+        return BallisticBlackBox(config.task(), data_dir_from(data_dir))
     return JumpBlackBox(config.jump, Path(out_dir), data_dir_from(data_dir))
 
 
