@@ -14,7 +14,7 @@ from agents.commands.cli import main
 from jaxsim.executor import LocalProcesses
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.optimize import direct, maximize_lbfgs
-from bds.search import SearchError, SearchSettings, search
+from bds.search import Failure, SearchError, SearchSettings, logged_evaluations, search
 from jaxsim.runlog import LogWarning
 from test_cli import run as run_cli
 
@@ -617,3 +617,35 @@ def test_takeoff_search_names_a_damaged_evaluation_before_using_it(tmp_path, cap
     log.write_text(log.read_text().replace('"x": [', '"x": ["left", ', 1))
     with pytest.raises(SystemExit, match=r"evaluations\.jsonl, record \d+: the evaluation's x "):
         main(["search", str(config), "--out", str(out_dir), "--set", "search.budget=6"])
+
+
+def _fails_left_of(edge):
+    """A smooth 1-D feature that is a Failure wherever x[0] < edge."""
+    def g(x):
+        if x[0] < edge:
+            return Failure(f"x[0] = {x[0]:.3f} is left of {edge}")
+        return np.array([np.sin(4 * x[0]) + x[1]])
+    return g
+
+
+def test_failures_are_logged_without_a_feature_and_resume_as_they_were(tmp_path):
+    log = tmp_path / "search.jsonl"
+    settings = SearchSettings(budget=8, initial=4, explore=1, diverse=1, seed=1, **FAST)
+    g = _fails_left_of(0.5)
+    result = search(g, [0, 0], [1, 1], settings, log=log)
+    records = logged_evaluations(log)
+    failed = [r for r in records if r["feature"] is None]
+    assert failed and all(r["failure"].startswith("x[0] = ") and r["x"][0] < 0.5 for r in failed)
+    assert all(r["failure"] is None and r["x"][0] >= 0.5 for r in records if r["feature"])
+    assert [f is not None for f in result.failures] == [r["feature"] is None for r in records]
+    assert np.isnan(result.features[[f is not None for f in result.failures]]).all()
+    resumed = search(g, [0, 0], [1, 1], dataclasses.replace(settings, budget=10), log=log)
+    np.testing.assert_array_equal(resumed.x[:8], result.x)
+    assert resumed.failures[:8] == result.failures
+
+
+def test_with_no_success_yet_the_model_picks_are_random_points():
+    settings = SearchSettings(budget=6, initial=2, explore=1, diverse=1, seed=0, **FAST)
+    result = search(_fails_left_of(2.0), [0, 0], [1, 1], settings)       # everything fails
+    assert result.kinds == ["initial", "initial"] + ["random"] * 4
+    assert all(result.failures)

@@ -1,0 +1,150 @@
+"""The real black box of strategy discovery: g(x) trains a jump policy from x, end to end, with a
+failure recorded, and a search killed mid-training resumes that training from its checkpoint."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agents.commands import strategy_search
+from agents.discovery import jump_black_box
+from agents.rl import trainer as trainer_lib
+from bds.search import Failure, logged_evaluations
+
+TINY_TRAINING = """
+[run]
+task = "highjump"
+envs = 4
+steps_per_iteration = 4
+iterations = 1000
+checkpoint_every = 1
+devices = 1
+
+[ppo]
+hidden = [16]
+minibatch_size = 16
+epochs = 1
+
+[highjump]
+actions = "pd"
+episode_steps = 4        # 0.13 s: no episode can clear the bar, so every evaluation fails
+control_schedule = false
+control_hz = 30.0
+"""
+
+
+def _search_config(tmp_path, samples):
+    train = tmp_path / "train.toml"
+    train.write_text(TINY_TRAINING)
+    config = tmp_path / "search.toml"
+    config.write_text(f"""
+black_box = "jump"
+[search]
+strategy = "random"
+budget = 1
+feature_low = [0.0]
+feature_high = [3.14159]
+[jump]
+train = "{train}"
+samples = {samples}
+episodes = 2
+""")
+    return config
+
+
+def _metrics(run_dir):
+    return [json.loads(line) for line in (run_dir / trainer_lib.METRICS).read_text().splitlines()]
+
+
+def test_a_search_killed_mid_training_resumes_it_and_records_the_failure(tmp_path, data_dir):
+    """`takeoff search` is killed (SIGKILL) while its first evaluation trains; run again, the
+    training goes on from its checkpoint (the iterations logged before the kill are kept, none
+    is repeated), the evaluation ends as a recorded failure with its files, and a third run
+    trains and evaluates nothing."""
+    config = _search_config(tmp_path, samples=16 * 12)           # 12 iterations
+    out = tmp_path / "search"
+    train_dir = jump_black_box.evaluation_dir(out, 0) / jump_black_box.TRAIN
+    env = {**os.environ, "TAKEOFF_DATA": str(data_dir)}
+    process = subprocess.Popen([sys.executable, "-m", "agents.commands.cli", "search",
+                                str(config), "--out", str(out)], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 900
+    while not ((train_dir / trainer_lib.METRICS).exists() and len(_metrics(train_dir)) >= 3):
+        assert process.poll() is None, process.stderr.read().decode()[-2000:]
+        assert time.monotonic() < deadline, "the search did not train 3 iterations in 15 min"
+        time.sleep(0.2)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    checkpointed = trainer_lib.completed_iterations(trainer_lib.load_checkpoint(
+        _template(train_dir, data_dir), train_dir, echo=lambda *_: None))
+    assert 1 <= checkpointed < 12
+    before = [r for r in _metrics(train_dir) if r["iteration"] <= checkpointed]
+    assert not (out / "evaluations.jsonl").exists() or not logged_evaluations(
+        out / "evaluations.jsonl")
+
+    result = strategy_search.run(config, out, data_dir=data_dir, echo=lambda *_: None)
+
+    after = _metrics(train_dir)
+    assert [r["iteration"] for r in after] == list(range(1, 13))
+    assert after[:checkpointed] == before          # kept as they were, not trained again
+    [record] = logged_evaluations(out / "evaluations.jsonl")
+    assert record["feature"] is None and "cleared 0 of 2 episodes at 0.50 m" in record["failure"]
+    assert result.failures == [record["failure"]] and np.isnan(result.features).all()
+    directory = jump_black_box.evaluation_dir(out, 0)
+    stored = json.loads((directory / jump_black_box.RESULT).read_text())
+    assert stored["outcome"] == "failure" and stored["samples"] == 16 * 12
+    np.testing.assert_allclose(stored["x"], record["x"])
+    episode = np.load(directory / jump_black_box.EPISODE)
+    assert episode["poses"].shape[0] >= 1 and (directory / jump_black_box.PEAK).stat().st_size
+
+    log_text = (out / "evaluations.jsonl").read_text()
+    strategy_search.run(config, out, data_dir=data_dir, echo=lambda *_: None)
+    assert (out / "evaluations.jsonl").read_text() == log_text
+    assert _metrics(train_dir) == after
+
+
+def _template(train_dir, data_dir):
+    from agents.commands import train_commands
+    config = train_commands.load_run_config(train_dir)
+    return train_commands.make_trainer(config, data_dir).init()
+
+
+def test_an_evaluation_with_a_result_is_not_run_again_and_another_search_s_is_refused(tmp_path):
+    """A result.json written before the kill (the log line lost) is what g returns; one for
+    another x means the directory belongs to another search."""
+    box = jump_black_box.JumpBlackBox(jump_black_box.JumpBlackBoxSettings(), tmp_path)
+    directory = jump_black_box.evaluation_dir(tmp_path, 3)
+    directory.mkdir(parents=True)
+    x = [0.1, -1.0, 2.0, -1.5]
+    result = {"x": x, "outcome": "success", "reason": None,
+              "feature": {"up_angle": 2.5, "cross_rotvec": [0.0, 0.0, 2.5]}}
+    (directory / jump_black_box.RESULT).write_text(json.dumps(result))
+    np.testing.assert_array_equal(box.evaluate(3, np.array(x)), [2.5])
+    (directory / jump_black_box.RESULT).write_text(json.dumps(
+        {**result, "outcome": "failure", "reason": "no jump", "feature": None}))
+    assert box.evaluate(3, np.array(x)) == Failure("no jump")
+    with pytest.raises(Exception, match="belongs to another search"):
+        box.evaluate(3, np.array(x) + 0.5)
+
+
+def test_the_feature_is_the_mean_over_the_clearing_episodes_and_needs_a_majority():
+    rng = np.random.default_rng(0)
+    n = 5
+    outcomes = {f"episode/{name}": rng.normal(size=n) for name in
+                ("up_angle", "cross_rotvec_x", "cross_rotvec_y", "cross_rotvec_z", "clearance",
+                 "peak_com")}
+    outcomes["episode/success"] = np.array([1.0, 0.0, 1.0, 1.0, np.nan])    # nan: never ended
+    feature = jump_black_box.crossing_feature(outcomes)
+    picked = np.array([0, 2, 3])
+    assert feature["up_angle"] == pytest.approx(outcomes["episode/up_angle"][picked].mean())
+    np.testing.assert_allclose(feature["cross_rotvec"], [
+        outcomes[f"episode/cross_rotvec_{a}"][picked].mean() for a in "xyz"])
+    assert feature["peak_com"] == pytest.approx(outcomes["episode/peak_com"][picked].mean())
+    outcomes["episode/success"] = np.array([1.0, 0.0, 1.0, 0.0, 0.0])        # 2 of 5
+    assert jump_black_box.crossing_feature(outcomes) is None
