@@ -2,11 +2,13 @@
 
 A config has three sections: `[run]` (which task, how many environments, how long), `[ppo]`,
 and the section of its task, named after it (`[imitation]`, `[reach]`, `[highjump]`, …; the
-tasks are registered in `agents.tasks.registry`). A run directory holds the resolved config
-(`config.json`), `metrics.jsonl` (one line per iteration), `checkpoint.msgpack` (written
-atomically) and `learning_curve.png`. A resumed run may change how long it runs, its learning
-settings and its task's settings with `--set`, but not what its checkpoint fixes (`[run]`'s
-`RunSettings.SHAPING`, `ppo.hidden`, and the keys its task declares in `fixed_on_resume`).
+tasks are registered in `agents.tasks.registry`); a jump task's config may have a fourth,
+`[novelty]`, which makes the run Stage 2 of strategy discovery (`agents.discovery.stage2`).
+A run directory holds the resolved config (`config.json`), `metrics.jsonl` (one line per
+iteration), `checkpoint.msgpack` (written atomically) and `learning_curve.png`. A resumed run
+may change how long it runs, its learning settings and its task's settings with `--set`, but
+not what its checkpoint fixes (`[run]`'s `RunSettings.SHAPING`, `ppo.hidden`, the keys its task
+declares in `fixed_on_resume`, and a Stage-2 run's `novelty.warm_start`).
 """
 
 import dataclasses
@@ -25,6 +27,7 @@ from agents.checkpoint import previous_path
 from agents.rl import parallel
 from agents.rl import trainer as trainer_lib
 from agents.datadir import data_dir_from
+from agents.discovery import stage2
 from agents.rl.ppo import PPOSettings
 from agents.rl.rollout import make_rollout, start_runner
 from agents.rl.trainer import RunSettings
@@ -44,6 +47,7 @@ class TrainConfig:
     run: RunSettings = field(default_factory=RunSettings)
     ppo: PPOSettings = field(default_factory=PPOSettings)
     task: Any = None
+    novelty: stage2.NoveltySettings | None = None      # Stage 2 (agents.discovery.stage2)
 
     def __post_init__(self):
         if not self.run.task:
@@ -67,14 +71,16 @@ class TrainConfig:
     def sections(self) -> dict:
         """The config as nested dicts, its task's section under the task's name (config.json)."""
         return {"run": dataclasses.asdict(self.run), "ppo": dataclasses.asdict(self.ppo),
-                self.run.task: dataclasses.asdict(self.task)}
+                self.run.task: dataclasses.asdict(self.task),
+                **({} if self.novelty is None else {"novelty": dataclasses.asdict(self.novelty)})}
 
     @property
     def fixed_on_resume(self) -> tuple[str, ...]:
         """Keys a resumed run cannot change: the seed (the checkpoint holds the PRNG state), the
         rollout's size, the hidden layers, and what the task says fixes its networks' sizes."""
         return (*(f"run.{name}" for name in RunSettings.SHAPING), "ppo.hidden",
-                *(f"{self.run.task}.{name}" for name in self.entry.fixed_on_resume))
+                *(f"{self.run.task}.{name}" for name in self.entry.fixed_on_resume),
+                "novelty.warm_start")
 
 
 @dataclass(frozen=True)
@@ -99,16 +105,18 @@ def build_config(data: dict, source) -> TrainConfig:
         entry = registry.get(task)
     except ValueError as error:
         raise config_io.ConfigError(f"{source}: [run]: {error}") from None
-    unknown = sorted(set(data) - {"run", "ppo", task})
+    unknown = sorted(set(data) - {"run", "ppo", task, "novelty"})
     if unknown:
         raise config_io.ConfigError(
             f"{source}: unknown section {unknown[0]!r}; a config for the task {task!r} takes "
-            f"[run], [ppo] and [{task}]")
+            f"[run], [ppo], [{task}] and (Stage 2) [novelty]")
     sections = config_io.build(_Sections, {k: data[k] for k in ("run", "ppo") if k in data},
                                source)
     settings = config_io.build(entry.settings, data.get(task, {}), source, f"{task}.")
+    novelty = (config_io.build(stage2.NoveltySettings, data["novelty"], source, "novelty.")
+               if "novelty" in data else None)
     try:
-        return TrainConfig(sections.run, sections.ppo, settings)
+        return TrainConfig(sections.run, sections.ppo, settings, novelty)
     except ValueError as error:
         raise config_io.ConfigError(f"{source}: config: {error}") from None
 
@@ -120,7 +128,8 @@ def load_config(path, overrides=()) -> TrainConfig:
 
 def make_env(config: TrainConfig, data_dir=None):
     entry = config.entry
-    return entry.make_env(config.task, data_dir_from(data_dir) if entry.needs_data else None)
+    env = entry.make_env(config.task, data_dir_from(data_dir) if entry.needs_data else None)
+    return env if config.novelty is None else stage2.novelty_env(env, config.novelty)
 
 
 def make_trainer(config: TrainConfig, data_dir=None) -> trainer_lib.Trainer:
@@ -171,6 +180,8 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
     else:
         source = config_path
         config = load_config(config_path, overrides)
+        if config.novelty is not None:      # Stage 2: its warm start checked, `search` read
+            config = stage2.prepare(config, source)
     parallel.start(config.run.devices, cluster)        # before anything starts JAX's backend
     writer = parallel.is_writer()
     if not writer:
@@ -190,7 +201,8 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
         existing = sum(f.stat().st_size for f in (run_dir / trainer_lib.CHECKPOINT,
                        previous_path(run_dir / trainer_lib.CHECKPOINT)) if f.is_file())
         check_writable(run_dir, 3 * state_bytes - existing + 2**20, "the run's checkpoints")
-    state = trainer.init()
+    state = (stage2.warm_start(trainer, config, source, echo)
+             if resume is None and config.novelty is not None and writer else trainer.init())
     if resume is not None and writer:
         # the checkpoint must fit (overrides included) before anything in run_dir is rewritten
         state = trainer_lib.load_checkpoint(state, run_dir, echo)
@@ -286,7 +298,7 @@ def _resume_overrides(config: TrainConfig, overrides, source) -> TrainConfig:
 
 def _get(sections, key):
     section, name = key.split(".")
-    return sections[section][name]
+    return sections.get(section, {}).get(name)          # (a run without [novelty]: None)
 
 
 class Episodes(NamedTuple):

@@ -141,51 +141,67 @@ class JumpBlackBox:
     def _measure(self, directory: Path, index: int, x) -> dict:
         """Evaluate the trained policy (see the module docstring), keep its files, return its
         result."""
-        from agents.commands import train_commands
-        from agents.rl import trainer as trainer_lib
-        run_dir = directory / TRAIN
-        config = train_commands.load_run_config(run_dir)
-        task_settings = config.sections()[config.run.task]
-        z_min = task_settings["z_min"]
-        quiet = lambda *_: None
-        episodes = train_commands.run_episodes(run_dir, self.settings.episodes, self.data_dir,
+        return measure(directory, directory / TRAIN, self.settings.episodes, self.data_dir,
+                       index=index, x=x.tolist())
+
+
+def measure(directory: Path, run_dir: Path, episodes: int, data_dir=None, **fields) -> dict:
+    """Steps 2 and 3 of the module docstring, for the policy trained in `run_dir`: measure it
+    with `episodes` deterministic episodes, keep episode.npz, peak.png and result.json in
+    `directory`, and return the result, which begins with `fields` (what the caller records of
+    the policy: its index, x, …). Stage 1's evaluations and Stage 2's runs are measured by it."""
+    from agents.commands import train_commands
+    from agents.rl import trainer as trainer_lib
+    directory = Path(directory)
+    config = train_commands.load_run_config(run_dir)
+    z_min = config.sections()[config.run.task]["z_min"]
+    quiet = lambda *_: None
+    measured = train_commands.run_episodes(run_dir, episodes, data_dir, echo=quiet)
+    reached = float(measured.summary["episode/difficulty"])
+    feature = crossing_feature(measured.outcomes)
+    if feature is None and reached > z_min + DIFFICULTY_TOLERANCE:
+        measured = train_commands.run_episodes(run_dir, episodes, data_dir, difficulty=z_min,
                                                echo=quiet)
-        reached = float(episodes.summary["episode/difficulty"])
-        cleared = _cleared(episodes)
-        if cleared.mean() <= MAJORITY and reached > z_min + DIFFICULTY_TOLERANCE:
-            episodes = train_commands.run_episodes(run_dir, self.settings.episodes,
-                                                   self.data_dir, difficulty=z_min, echo=quiet)
-            cleared = _cleared(episodes)
-        records = trainer_lib.read_metrics(run_dir)
-        last = records[-1]
-        height = float(episodes.summary["episode/difficulty"])
-        result = {"index": index, "x": x.tolist(), "task": config.run.task,
-                  "reached": reached, "samples": int(last["samples"]),
-                  "minutes": last["seconds"] / 60, "iterations": int(last["iteration"]),
-                  "training_success": last.get("env/episode/success"),
-                  "episodes": self.settings.episodes, "cleared_share": float(cleared.mean()),
-                  "evaluated_at": height}
-        if cleared.mean() > MAJORITY:
-            o = episodes.outcomes
-            result.update(outcome="success", reason=None, highest_cleared=height, feature={
-                "up_angle": float(np.mean(o["episode/up_angle"][cleared])),
-                "cross_rotvec": [float(np.mean(o[f"episode/cross_rotvec_{a}"][cleared]))
-                                 for a in "xyz"],
-                "clearance": float(np.mean(o["episode/clearance"][cleared])),
-                "peak_com": float(np.mean(o["episode/peak_com"][cleared]))})
-        else:
-            result.update(outcome="failure", highest_cleared=None, feature=None, reason=(
-                f"the deterministic policy cleared {int(cleared.sum())} of {cleared.size} "
-                f"episodes at {height:.2f} m after {result['samples']:,} training samples "
-                f"({result['minutes']:.0f} min); in its last training iteration "
-                f"{100 * (result['training_success'] or 0):.0f}% of the episodes succeeded"))
-        _keep_episode(directory, episodes, height)
-        write_text_atomic(directory / RESULT, json.dumps(result, indent=2) + "\n")
-        return result
+        feature = crossing_feature(measured.outcomes)
+    cleared = _cleared(measured.outcomes)
+    last = trainer_lib.read_metrics(run_dir)[-1]
+    height = float(measured.summary["episode/difficulty"])
+    result = {**fields, "task": config.run.task,
+              "reached": reached, "samples": int(last["samples"]),
+              "minutes": last["seconds"] / 60, "iterations": int(last["iteration"]),
+              "training_success": last.get("env/episode/success"),
+              "episodes": episodes, "cleared_share": float(cleared.mean()),
+              "evaluated_at": height}
+    if feature is not None:
+        result.update(outcome="success", reason=None, highest_cleared=height, feature=feature)
+    else:
+        result.update(outcome="failure", highest_cleared=None, feature=None, reason=(
+            f"the deterministic policy cleared {int(cleared.sum())} of {cleared.size} "
+            f"episodes at {height:.2f} m after {result['samples']:,} training samples "
+            f"({result['minutes']:.0f} min); in its last training iteration "
+            f"{100 * (result['training_success'] or 0):.0f}% of the episodes succeeded"))
+    _keep_episode(directory, measured, height)
+    write_text_atomic(directory / RESULT, json.dumps(result, indent=2) + "\n")
+    return result
 
 
-def _cleared(episodes) -> np.ndarray:
-    return np.asarray(episodes.outcomes["episode/success"]) > 0.5
+def _cleared(outcomes) -> np.ndarray:
+    return np.asarray(outcomes["episode/success"]) > 0.5
+
+
+def crossing_feature(outcomes) -> dict | None:
+    """The strategy features of deterministic episodes (`outcomes`: each `episode/` metric per
+    episode, where it ended) when more than half of them cleared the bar: the means, over the
+    clearing episodes, of the up angle (Stage 1's feature), the 3-D root orientation at the
+    crossing (Stage 2's), the centre of mass's height over the bar there and its peak height.
+    None when too few cleared."""
+    cleared = _cleared(outcomes)
+    if not cleared.mean() > MAJORITY:
+        return None
+    mean = lambda name: float(np.mean(np.asarray(outcomes[f"episode/{name}"])[cleared]))
+    return {"up_angle": mean("up_angle"),
+            "cross_rotvec": [mean(f"cross_rotvec_{axis}") for axis in "xyz"],
+            "clearance": mean("clearance"), "peak_com": mean("peak_com")}
 
 
 def _keep_episode(directory: Path, episodes, height: float):

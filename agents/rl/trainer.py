@@ -187,10 +187,12 @@ class Trainer:
         key = self._static_key(curriculum_state)
         return self.env if key is None else self.env.variant(key)
 
-    def init(self) -> TrainState:
+    def init(self, curriculum=None) -> TrainState:
+        """A fresh state from the run's seed; its environments start under the curriculum's
+        state `curriculum` (default: the curriculum's start)."""
         key = jax.random.PRNGKey(self.run_settings.seed)
         ppo_key, env_key, key = jax.random.split(key, 3)
-        curriculum = self.curriculum.init()
+        curriculum = self.curriculum.init() if curriculum is None else curriculum
         runner = rollout_lib.start_runner(self.env, self.env_params_for(curriculum), env_key,
                                           self.run_settings.envs, params_axis=0)
         norm = RunningNorm.zeros(self.env.observation_size, runner.envs.obs.dtype)

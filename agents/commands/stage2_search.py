@@ -1,0 +1,247 @@
+"""`takeoff stage2 SEARCH_DIR`: Stage 2 of strategy discovery over a jump search (thesis §3.5.2,
+§3.7.1): novel policy seeking from every Stage-1 strategy the search found.
+
+"In Stage 2, we perform novel policy search for five DRL iterations from each good initial state
+of Stage 1. Training is warm started with the associated Stage 1 policy" (§3.7.1).
+
+What "five DRL iterations" means. Not five PPO iterations (4,096 samples each; seconds of
+training): the thesis's Stage 2 took about 60 hours for the initial states of its six Stage-1
+strategies, while one Stage-1 evaluation (a training to z_freeze) took about 6 hours. Thirty
+trainings of about 2 hours each fit: we read a DRL iteration as one round of novel policy search,
+one training of a new policy π_{n+1} against the set Π of the policies found so far (§3.5.2),
+and give it a third of a Stage-1 evaluation's budget. Hence the defaults:
+    --rounds      5 rounds per Stage-1 strategy;
+    --iterations  ⌈jump.samples / 3 / samples per iteration⌉ PPO iterations per round
+                  (jump.samples: the search's training budget of one evaluation): 163 for
+                  configs/highjump_bds.toml's 2,000,000 samples at 4,096 per iteration.
+With them Stage 2 costs what the thesis's did relative to Stage 1: six strategies × 5 rounds ×
+a third of an evaluation = the ten evaluations of the search.
+
+Each Stage-1 strategy (`agents.discovery.stage2.stage1_strategies`: the search's successful
+evaluations grouped as its own summary groups them) starts its rounds from its representative,
+the evaluation that cleared the highest bar: each round is a `takeoff train` run from that
+evaluation's config (its take-off state, networks and PPO settings) with a `[novelty]` section
+warm-starting from its Stage-1 policy. The features a round is novel against (`known`) are those
+of every policy the search has found when the round starts: every successful Stage-1
+evaluation — not only the representatives: Stage 1 groups by the 1-D up angle alone, and two
+evaluations of one group may cross the bar in different 3-D orientations — and every successful
+Stage-2 round before it. So Π grows as in §3.5.2, and two rounds that find the same new strategy
+do not both count it as novel. The rounds therefore run one after another, round by round (the
+first round of every strategy, then the second, …), so a Stage 2 stopped early has tried every
+strategy.
+
+Files, under OUT (default SEARCH/stage2):
+    plan.json        the rounds (index, Stage-1 evaluation, its strategy, round), fixed at the
+                     first start, with the rounds and iterations
+    NNN/stage2.toml  the round's training config (written before it trains; its known features
+                     fixed then), NNN/known.json which policy each known feature is
+    NNN/train/       its `takeoff train` run directory
+    NNN/result.json  (and episode.npz, peak.png) its policy measured as Stage 1 measures an
+                     evaluation (`agents.discovery.jump_black_box.measure`), written last
+    summary.json     what the summary printed
+Run again, the command skips the rounds with a result.json, resumes the one in progress from its
+checkpoint, and goes on.
+
+The summary: a round's policy is novel when its crossing orientation is farther than d_threshold
+from every feature it was trained against (where r_novelty, eq. 3.12, reaches 1); otherwise it
+repeats the nearest of them, named with its Stage-1 strategy.
+"""
+
+import json
+import math
+from pathlib import Path
+
+from agents import config as config_io
+from agents.checkpoint import previous_path
+from agents.commands import train_commands
+from agents.config import ConfigError
+from agents.discovery import jump_black_box, stage2
+from agents.rl import parallel
+from agents.rl import trainer as trainer_lib
+from bds.search import SearchError
+from jaxsim.atomic import check_writable, write_text_atomic
+
+PLAN, KNOWN, RUN_CONFIG, SUMMARY = "plan.json", "known.json", "stage2.toml", "summary.json"
+ROUNDS = 5                  # "five DRL iterations" (§3.7.1), as rounds
+ROUND_SHARE = 3             # a round's samples: a third of one Stage-1 evaluation's budget
+
+
+def run(search_dir, iterations=None, rounds=None, out=None, data_dir=None, echo=print) -> list:
+    """Run (or resume) Stage 2 over the search in `search_dir`; print and return the summary
+    (a dict per round)."""
+    search_dir = Path(search_dir)
+    out = search_dir / stage2.STAGE2 if out is None else Path(out)
+    search_config, records = stage2.read_search(search_dir)
+    _start_devices(search_dir, records)
+    plan = _plan(search_dir, out, search_config, iterations, rounds, echo)
+    for entry in plan["runs"]:
+        _run_round(search_dir, out, entry, plan, search_config["jump"]["episodes"], data_dir,
+                   echo)
+    return summarise(search_dir, out, echo)
+
+
+def _start_devices(search_dir, records):
+    """The devices the Stage-1 trainings used, asked for before JAX's backend starts."""
+    for record in records:
+        path = (jump_black_box.evaluation_dir(search_dir, record["index"])
+                / jump_black_box.TRAIN / train_commands.CONFIG)
+        if path.is_file():
+            parallel.start(config_io.read_stored(path).get("run", {}).get("devices", 1))
+            return
+
+
+def _plan(search_dir, out, search_config, iterations, rounds, echo) -> dict:
+    """The stored plan of a Stage 2 in `out`, or a new one written there."""
+    path = out / PLAN
+    if path.exists():
+        plan = config_io.read_stored(path)
+        for flag, given, stored in (("--iterations", iterations, plan["iterations"]),
+                                    ("--rounds", rounds, plan["rounds"])):
+            if given is not None and given != stored:
+                raise ConfigError(f"{out} holds a Stage 2 of {plan['rounds']} rounds × "
+                                  f"{plan['iterations']} iterations, and {flag} {given} asks for "
+                                  "another: give the same (or none) to resume it, or another "
+                                  "--out")
+        echo(f"resuming Stage 2 in {out}")
+        return plan
+    found = stage2.stage1_strategies(search_dir)
+    if not found:
+        raise SearchError(f"{search_dir}: no evaluation of the search succeeded, so there is no "
+                          "Stage-1 strategy to start Stage 2 from")
+    rounds = ROUNDS if rounds is None else rounds
+    if iterations is None:
+        run_settings = _stage1_sections(search_dir, found[0].representative)["run"]
+        per_iteration = run_settings["envs"] * run_settings["steps_per_iteration"]
+        iterations = math.ceil(search_config["jump"]["samples"] / ROUND_SHARE / per_iteration)
+    runs = [{"evaluation": s.representative, "strategy": s.label, "round": r}
+            for r in range(rounds) for s in found]
+    plan = {"search": str(search_dir), "rounds": rounds, "iterations": iterations,
+            "runs": [{"index": i, **entry} for i, entry in enumerate(runs)]}
+    check_writable(out, what="Stage 2's runs")
+    _write_json(path, plan)
+    echo(f"Stage 2 of {search_dir}: {len(found)} Stage-1 strateg{'y' if len(found) == 1 else 'ies'}"
+         f" × {rounds} round{'s' if rounds > 1 else ''} of {iterations} iteration"
+         f"{'s' if iterations > 1 else ''} → {out}")
+    return plan
+
+
+def _stage1_sections(search_dir, evaluation) -> dict:
+    return config_io.read_stored(jump_black_box.evaluation_dir(search_dir, evaluation)
+                                 / jump_black_box.TRAIN / train_commands.CONFIG)
+
+
+def stage2_sections(stage1_run, known, iterations) -> dict:
+    """The config (nested dicts) of a Stage-2 round from the Stage-1 run in `stage1_run`: its
+    settings (task, take-off state, networks, PPO), `iterations` iterations with no stop
+    difficulty or time limit, and a [novelty] section warm-starting from it, novel against the
+    rotation vectors `known`."""
+    sections = config_io.read_stored(Path(stage1_run) / train_commands.CONFIG)
+    sections["run"].update(iterations=iterations, stop_difficulty=0.0, time_limit_minutes=0.0)
+    sections["novelty"] = {"warm_start": str(Path(stage1_run).resolve()),
+                           "known": [[float(v) for v in f] for f in known],
+                           "threshold": stage2.NoveltySettings.threshold,
+                           "distance": stage2.NoveltySettings.distance}
+    return sections
+
+
+def to_toml(sections) -> str:
+    """Nested dicts of plain values as TOML (a JSON string, number, boolean or array is the
+    same TOML value)."""
+    lines = []
+    for name, table in sections.items():
+        lines += [f"[{name}]", *(f"{key} = {json.dumps(value, ensure_ascii=False)}"
+                                 for key, value in table.items()), ""]
+    return "\n".join(lines)
+
+
+def _run_round(search_dir, out, entry, plan, episodes, data_dir, echo):
+    """One round: trained (or resumed), then measured; nothing when it has its result."""
+    index = entry["index"]
+    directory = out / f"{index:03d}"
+    if jump_black_box.read_result(directory) is not None:
+        return
+    run_dir = directory / jump_black_box.TRAIN
+    echo(f"[stage2 {index:03d}] round {entry['round'] + 1}/{plan['rounds']} from evaluation "
+         f"{entry['evaluation']} (Stage-1 strategy {entry['strategy']})")
+    say = jump_black_box._prefixed(f"  [stage2 {index:03d}] ")
+    checkpoint = run_dir / trainer_lib.CHECKPOINT
+    if checkpoint.exists() or previous_path(checkpoint).exists():
+        train_commands.train(resume=run_dir, data_dir=data_dir, echo=say)   # (a finished one
+    else:                                                                    # trains no more)
+        config_path = directory / RUN_CONFIG
+        if not config_path.exists():
+            known = stage2.found_policies(search_dir, out)
+            stage1_run = (jump_black_box.evaluation_dir(search_dir, entry["evaluation"])
+                          / jump_black_box.TRAIN)
+            _write_json(directory / KNOWN, [{"policy": p.name, "cross_rotvec": p.cross_rotvec}
+                                            for p in known])
+            sections = stage2_sections(stage1_run, [p.cross_rotvec for p in known],
+                                       plan["iterations"])
+            write_text_atomic(config_path, f"# Stage 2 (takeoff stage2), round "
+                              f"{entry['round'] + 1} from {stage1_run}\n" + to_toml(sections))
+        train_commands.train(config_path, run_dir, data_dir=data_dir, echo=say)
+    config = train_commands.load_run_config(run_dir)
+    result = jump_black_box.measure(
+        directory, run_dir, episodes, data_dir, index=index,
+        x=list(config.sections()[config.run.task]["takeoff"]), stage=2,
+        evaluation=entry["evaluation"], strategy=entry["strategy"], round=entry["round"])
+    echo(f"[stage2 {index:03d}] {_outcome(result)}")
+
+
+def _outcome(result) -> str:
+    if result["outcome"] != "success":
+        return f"FAILED: {result['reason']}"
+    feature = result["feature"]
+    return (f"crossing orientation ({', '.join(f'{v:.2f}' for v in feature['cross_rotvec'])}), "
+            f"up angle {feature['up_angle']:.2f}, bar {result['highest_cleared']:.2f} m")
+
+
+def summarise(search_dir, out, echo=print) -> list:
+    """Which rounds found a novel policy and which repeat one (see the module docstring),
+    printed and written to summary.json."""
+    plan = config_io.read_stored(Path(out) / PLAN)
+    strategy_of = {i: s.label for s in stage2.stage1_strategies(search_dir)
+                   for i in s.evaluations}
+    rows = []
+    for entry in plan["runs"]:
+        directory = Path(out) / f"{entry['index']:03d}"
+        result = jump_black_box.read_result(directory)
+        row = {**entry, "outcome": "not run" if result is None else result["outcome"]}
+        if result is not None and result["outcome"] == "success":
+            known = json.loads((directory / KNOWN).read_text())
+            novelty = train_commands.load_run_config(directory / jump_black_box.TRAIN).novelty
+            novel, nearest, gap = stage2.is_novel(
+                result["feature"]["cross_rotvec"], [k["cross_rotvec"] for k in known],
+                novelty.threshold, novelty.distance)
+            name = known[nearest]["policy"]
+            if name.startswith("evaluation "):
+                name += f" (Stage-1 strategy {strategy_of.get(int(name.split()[1]), '?')})"
+            row.update(novel=novel, nearest=name, distance=gap, threshold=novelty.threshold,
+                       feature=result["feature"], highest_cleared=result["highest_cleared"])
+        elif result is not None:
+            row.update(reason=result["reason"])
+        rows.append(row)
+    _write_json(Path(out) / SUMMARY, rows)
+    novel = sum(bool(r.get("novel")) for r in rows)
+    repeats = sum(r.get("novel") is False for r in rows)
+    failed = sum(r["outcome"] == "failure" for r in rows)
+    echo(f"\nStage 2 of {search_dir}: {len(rows)} round{'s' if len(rows) != 1 else ''}, "
+         f"{novel} novel, {repeats} "
+         f"repeat{'s' if repeats != 1 else ''}, {failed} failed"
+         + (f", {len(rows) - novel - repeats - failed} not run" if
+            len(rows) > novel + repeats + failed else ""))
+    for r in rows:
+        start = (f"{r['index']:03d}  round {r['round'] + 1}  from evaluation {r['evaluation']} "
+                 f"(strategy {r['strategy']})  ")
+        if "novel" in r:
+            what = (f"NOVEL: {r['distance']:.2f} rad from the nearest, {r['nearest']}"
+                    if r["novel"] else f"repeats {r['nearest']} ({r['distance']:.2f} rad)")
+            echo(start + f"{what}; up angle {r['feature']['up_angle']:.2f}, bar "
+                         f"{r['highest_cleared']:.2f} m")
+        else:
+            echo(start + (f"failed: {r['reason']}" if r["outcome"] == "failure" else "not run"))
+    return rows
+
+
+def _write_json(path, value):
+    write_text_atomic(Path(path), json.dumps(value, indent=2) + "\n")
