@@ -47,9 +47,14 @@ def camera(azimuth: float = 0.0, elevation: float = 0.0) -> np.ndarray:
     return np.stack([right, up, toward])
 
 
+# One compiled function for every call (per model structure and number of poses), rather than
+# a new one, compiled again, each time a picture is drawn.
+_batch_kinematics = jax.jit(jax.vmap(kinematics.forward_kinematics, in_axes=(None, 0)))
+
+
 def _poses(model: Model, qs):
     qs = jnp.asarray(qs, model.mass.dtype)
-    rot, pos = jax.jit(jax.vmap(lambda q: kinematics.forward_kinematics(model, q)))(qs)
+    rot, pos = _batch_kinematics(model, qs)
     return np.asarray(rot, float), np.asarray(pos, float)
 
 
@@ -249,6 +254,17 @@ def views(model: Model, q, path, world: World | None = None, azimuths=(0.0, 90.0
         if labels is not None:
             ax.set_title(labels[k], fontsize=9)
     save_figure(fig, path, title)
+
+
+def view_panel(ax, model: Model, q, world: World | None = None, azimuth: float = 0.0,
+               elevation: float = 0.0, style: str = "shapes", label: str | None = None):
+    """Draw one pose q (nq,) into the matplotlib axes `ax` as each panel of `views` is drawn,
+    so that a figure can combine panels with different cameras or worlds."""
+    rot, pos, view, centres, box, _ = _prepare(model, np.asarray(q)[None], style, azimuth,
+                                               elevation, world)
+    _draw_panel(ax, model, rot[0], pos[0], world, view, centres[0], box, style)
+    if label is not None:
+        ax.set_title(label, fontsize=9)
 
 
 def save_figure(fig, path, title: str | None = None, dpi: int = 100):

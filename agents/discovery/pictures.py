@@ -1,10 +1,20 @@
 """Pictures of a jump: the peak pose seen along the bar and across it, as the thesis shows its
-strategies (Fig. 3.4). Used by the real black box for every evaluation and by the gallery."""
+strategies (Fig. 3.4). Used by the real black box for every evaluation and by the gallery.
 
+Fig. 3.4 shows each strategy's peak pose in a look-up view and a look-down view: from below the
+bar, the side of the body facing the ground, and from above, the side facing the sky, which is
+what tells a flop (back to the bar, belly up) from a straddle or a dive (belly down). The
+gallery's `peak_above_below` draws those two with the camera straight above and straight below,
+the bar running across the picture, beside the level view along the bar that shows the height.
+"""
+
+import math
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsim import kinematics, render
+from jaxsim import kinematics, render, rotations
 
 
 def azimuth_looking_along(direction) -> float:
@@ -18,10 +28,13 @@ def bar_directions(env, task):
     return normal, np.cross(normal, [0.0, 1.0, 0.0])
 
 
+_centres_of_mass = jax.jit(jax.vmap(kinematics.center_of_mass, in_axes=(None, 0)))
+
+
 def peak_index(env, poses) -> int:
     """The control step at which the centre of mass is highest."""
-    heights = [float(kinematics.center_of_mass(env.model, jnp.asarray(q))[1]) for q in poses]
-    return int(np.argmax(heights))
+    poses = jnp.asarray(poses, env.model.mass.dtype)
+    return int(np.argmax(np.asarray(_centres_of_mass(env.model, poses))[:, 1]))
 
 
 def peak_views(env, poses, task, path, title=None):
@@ -38,3 +51,81 @@ def peak_views(env, poses, task, path, title=None):
     render.views(env.model, poses[peak], path, world=world,
                  azimuths=(azimuth_looking_along(along), azimuth_looking_along(normal)),
                  labels=(f"along the {thing}", f"facing the {thing}"), title=title)
+
+
+def _bar_only(env, world):
+    """`world` with its bar (or obstacle) alone: the landing block would cover a view from
+    below."""
+    k = world.object_index("bar" if env.kind == "highjump" else "obstacle") - 1    # 0: ground
+    return world.replace(ground=False, box_names=world.box_names[k:k + 1],
+                         box_center=world.box_center[k:k + 1],
+                         box_rotation=world.box_rotation[k:k + 1],
+                         box_half_size=world.box_half_size[k:k + 1])
+
+
+def _also_frame(ax, points, margin=0.1):
+    """Widen a square panel's view, keeping it square, to show screen points (k, 2)."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    low = np.minimum([x0, y0], points.min(0) - margin)
+    high = np.maximum([x1, y1], points.max(0) + margin)
+    middle, half = (low + high) / 2, (high - low).max() / 2
+    ax.set_xlim(middle[0] - half, middle[0] + half)
+    ax.set_ylim(middle[1] - half, middle[1] + half)
+
+
+def _nearest_on_bar(world, q_root):
+    """The point of the bar's (the world's first box's) top edge, on its centre line, nearest
+    to the point q_root."""
+    centre = np.asarray(world.box_center[0], float)
+    rotation = np.asarray(world.box_rotation[0], float)
+    half = np.asarray(world.box_half_size[0], float)
+    along = rotation[:, 2]
+    t = np.clip(along @ (np.asarray(q_root, float) - centre), -half[2], half[2])
+    return centre + t * along + half[1] * rotation[:, 1]
+
+
+def peak_above_below(env, poses, task, path, title=None, panel_size: float = 2.4,
+                     control_dt: float | None = None):
+    """The peak pose of an episode (poses (T, nq) at its control steps) in three panels: along
+    the bar (level, over the ground), and from straight above and straight below with the bar
+    running across (Fig. 3.4's look-down and look-up views; the bar alone, without the ground
+    and block that would hide the body from below, framed on the body and the nearest part of
+    the bar), written as a PNG. `control_dt`: the episode's control step (default the
+    environment's; the curriculum's schedule changes it with the bar)."""
+    normal, along = bar_directions(env, task)
+    heights = np.asarray(_centres_of_mass(env.model, jnp.asarray(poses, env.model.mass.dtype)))
+    peak = int(np.argmax(heights[:, 1]))                  # as `peak_index`
+    world = env.world_for(task)
+    q, height = np.asarray(poses[peak]), float(heights[peak, 1])
+    thing = "bar" if env.kind == "highjump" else "obstacle"
+    facing, bar = azimuth_looking_along(normal), _bar_only(env, world)
+    panels = ((f"along the {thing}", world, azimuth_looking_along(along), 0.0),
+              ("from above", bar, facing, 90.0), ("from below", bar, facing, -90.0))
+    plt = render.pyplot()
+    fig, axes = plt.subplots(1, len(panels), figsize=(panel_size * len(panels),
+                                                      panel_size * 1.15), squeeze=False)
+    nearest = _nearest_on_bar(bar, q[:3])
+    for ax, (label, panel_world, azimuth, elevation) in zip(axes[0], panels):
+        render.view_panel(ax, env.model, q, panel_world, azimuth, elevation, label=label)
+        if elevation:
+            _also_frame(ax, (render.camera(azimuth, elevation)[:2] @ nearest)[None])
+    if title is None:
+        facing_up = np.degrees(np.arccos(np.clip(float(
+            rotations.quat_to_matrix(jnp.asarray(q[3:7]))[1, 0]), -1.0, 1.0)))
+        title = (f"peak pose (t = {(peak + 1) * (control_dt or env.control_dt):.2f} s, "
+                 f"centre of mass {height:.2f} m, facing {facing_up:.0f}° from up)")
+    fig.suptitle(title, fontsize=10)
+    render.save_figure(fig, path)
+
+
+def episode_animation(env, poses, task, path, control_dt: float, max_frames: int = 24,
+                      size: float = 2.4):
+    """An animated GIF of an episode seen along the bar, small enough to keep in git: at most
+    `max_frames` frames (every k-th control step, still in real time) of size × size inches at
+    100 dpi."""
+    step = max(1, math.ceil(len(poses) / max_frames))
+    picks = np.arange(0, len(poses), step)
+    _, along = bar_directions(env, task)
+    render.animation(env.model, np.asarray(poses)[picks], path, world=env.world_for(task),
+                     fps=1.0 / (control_dt * step), azimuth=azimuth_looking_along(along),
+                     size=size, times=control_dt * (picks + 1))
