@@ -120,16 +120,20 @@ class ImitationEnv:
     an unknown foot) are a `ConfigError` naming the key of the `[imitation]` section."""
 
     def __init__(self, settings: ImitationSettings, data_dir, dtype=jnp.float32):
-        self.settings = settings
         deepmimic = Path(data_dir) / "deepmimic"
         character = common.data_file(settings.character, deepmimic / "characters", "character")
         controller = deepmimic / "controllers" / f"{character.stem}_ctrl.txt"
         if not controller.is_file():
             raise ConfigError(f"character: no controller file {controller} for {character}")
-        self.model = characters.load_deepmimic(character, controller, dtype=dtype)
-        self.clip = motion.load_motion(
-            common.data_file(settings.clip, deepmimic / "motions", "clip"), self.model)
-        self.world = make_world(dtype=dtype)
+        model = characters.load_deepmimic(character, controller, dtype=dtype)
+        clip = motion.load_motion(
+            common.data_file(settings.clip, deepmimic / "motions", "clip"), model)
+        self._setup(settings, model, clip, make_world(dtype=dtype))
+
+    def _setup(self, settings: ImitationSettings, model, clip, world):
+        """What every imitation of `clip` by `model` in `world` holds (a task built on this one,
+        such as the run-up of `agents.tasks.runup`, loads its own character and clip)."""
+        self.settings, self.model, self.clip, self.world = settings, model, clip, world
         topo = self.model.topology
         self._may_touch = np.isin(np.arange(topo.n_links),
                                   common.link_indices(self.model, settings.feet, "feet"))
@@ -230,14 +234,22 @@ class ImitationEnv:
         return start_of_episode(physics, self._observe(physics, start), key, start, metrics)
 
     def step(self, params, state, action):
-        """One control step: PD target from the action and the reference at the next control
-        time, `substeps` simulation steps, reward against that reference, early termination
-        (a non-foot link touched the ground, or a non-finite state, which is replaced by the
-        state before the step and earns no reward), and truncation at the time limit or, for a
-        clip that does not loop, once that time reaches the clip's duration."""
+        """One control step (`imitate`), truncated at the time limit or, for a clip that does
+        not loop, once the reference time reaches the clip's duration."""
+        physics, t, fell, reward, metrics = self.imitate(params, state, action, state.task)
+        clip_over = False if self.clip.loop else t >= self.clip.duration
+        return end_of_step(state, physics, self._observe(physics, t), reward, fell, state.task,
+                           metrics, self.episode_steps, clip_over)
+
+    def imitate(self, params, state, action, start):
+        """One control step of an episode that started at clip time `start`: PD target from
+        the action and the reference at the next control time t, `substeps` simulation steps,
+        reward against that reference, and early termination (a non-foot link touched the
+        ground, or a non-finite state, which is replaced by the state before the step and earns
+        no reward). Returns (physics, t, fell, reward, metrics)."""
         world = common.world_of(self.world, params)
         dtype = self.clip.poses.dtype
-        t = state.task + (state.steps + 1).astype(dtype) * self.control_dt
+        t = start + (state.steps + 1).astype(dtype) * self.control_dt
         q_ref, qd_ref = self.reference(t)
         target_velocity = qd_ref if self.settings.spd_target_velocity == "reference" else None
         stepped, touched = common.simulate_control_step(
@@ -247,9 +259,7 @@ class ImitationEnv:
         fell = jnp.any(touched[:, self._ground] & ~self._may_touch) | ~finite
         terms, angles = self.reward_terms(physics.q, physics.qd, q_ref, qd_ref)
         reward = jnp.where(finite, self.reward(terms), 0.0)
-        clip_over = False if self.clip.loop else t >= self.clip.duration
-        return end_of_step(state, physics, self._observe(physics, t), reward, fell, state.task,
-                           self._metrics(terms, angles, fell), self.episode_steps, clip_over)
+        return physics, t, fell, reward, self._metrics(terms, angles, fell)
 
 
 registry.register(registry.Task(

@@ -12,7 +12,8 @@ import importlib
 from typing import Any, Callable
 
 BUILTIN = {"imitation": "agents.tasks.imitation", "reach": "agents.tasks.reach",
-           "highjump": "agents.tasks.jump", "obstacle": "agents.tasks.jump"}
+           "highjump": "agents.tasks.jump", "obstacle": "agents.tasks.jump",
+           "runup": "agents.tasks.runup"}
 
 
 @dataclasses.dataclass(frozen=True)
