@@ -219,6 +219,39 @@ def _cmd_plot(args):
     print(f"wrote {path}")
 
 
+def _cmd_motion(args):
+    from agents.commands import motion_commands
+
+    try:
+        motion_commands.full_motion(args.runup_dir, args.jump_dir, args.out, args.data_dir,
+                                    args.fps, args.seed)
+    except run_errors() as error:
+        raise SystemExit(f"takeoff motion: {error}")
+
+
+def _cmd_gallery(args):
+    from agents.discovery import gallery
+
+    try:
+        path = gallery.write_gallery(args.search_dir, args.out, args.data_dir,
+                                     redraw=args.redraw)
+    except gallery.errors() as error:
+        raise SystemExit(f"takeoff gallery: {error}")
+    print(f"wrote {path}")
+
+
+def _cmd_stage2(args):
+    from agents.commands import stage2_search
+    from bds.search import SearchError
+
+    try:
+        stage2_search.run(args.search_dir, args.iterations, args.rounds, args.out, args.data_dir)
+    except (*run_errors(), SearchError) as error:
+        raise SystemExit(f"takeoff stage2: {error}")
+    except KeyboardInterrupt:
+        raise SystemExit(130)
+
+
 def _positive_int(text):
     """An argparse type: a whole number ≥ 1."""
     try:
@@ -267,6 +300,16 @@ def build_parser():
                         "executor.workers")
     p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_search)
+    p = sub.add_parser("stage2", help="Stage 2 of strategy discovery: novel policy seeking from "
+                                      "every Stage-1 strategy of a jump search (rerun: resumes)")
+    p.add_argument("search_dir", help="the directory of a `takeoff search` of a jump task")
+    p.add_argument("--iterations", type=_positive_int, help="PPO iterations per round (default: "
+                   "a third of one Stage-1 evaluation's samples)")
+    p.add_argument("--rounds", type=_positive_int, help="rounds of novel policy search per "
+                   "strategy (default 5, the thesis's five)")
+    p.add_argument("--out", help="where the rounds go (default SEARCH_DIR/stage2)")
+    p.add_argument("--data-dir", help=DATA_DIR_HELP)
+    p.set_defaults(run=_cmd_stage2)
     p = sub.add_parser("pvae", help="the pose VAE: build its dataset from motion capture, train it")
     pvae_sub = p.add_subparsers(dest="pvae_command", metavar="STEP", required=True)
     q = pvae_sub.add_parser("dataset", help="retarget CMU 01-03 and DeepMimic clips to the "
@@ -308,6 +351,25 @@ def build_parser():
                    help="also write an animation of episode 0")
     p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_eval)
+    p = sub.add_parser("motion", help="a run-up policy and a jump policy as one full motion: "
+                                      "GIF, filmstrip, BVH and summary.json")
+    p.add_argument("runup_dir", help="a run directory of the runup task")
+    p.add_argument("jump_dir", help="a highjump or obstacle run directory of the same take-off x")
+    p.add_argument("--out", required=True, metavar="DIR", help="where to write the motion")
+    p.add_argument("--fps", type=float, help="frames per second of the GIF and BVH (default: "
+                                             "the run-up's control rate)")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the rollout (default 0)")
+    p.add_argument("--data-dir", help=DATA_DIR_HELP)
+    p.set_defaults(run=_cmd_motion)
+    p = sub.add_parser("gallery", help="one HTML page (and a PNG contact sheet) of a strategy "
+                                       "search's evaluations and strategies")
+    p.add_argument("search_dir", help="the run directory of a `takeoff search`")
+    p.add_argument("--out", metavar="DIR", help="where to write gallery.html and gallery/ "
+                                                "(default: the search directory)")
+    p.add_argument("--redraw", action="store_true",
+                   help="draw every picture again (by default one newer than its episode is kept)")
+    p.add_argument("--data-dir", help=DATA_DIR_HELP)
+    p.set_defaults(run=_cmd_gallery)
     p = sub.add_parser("plot", help="draw a run's learning curve (learning_curve.png)")
     p.add_argument("run_dir")
     p.set_defaults(run=_cmd_plot)
