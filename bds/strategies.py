@@ -1,5 +1,8 @@
 """Which evaluations of a strategy search are the same strategy: the one rule the search's summary,
-the gallery, Stage 2 and the search benchmark count distinct strategies by.
+the gallery and Stage 2 count distinct strategies by. (The search benchmark on the ballistic box,
+`benchmarks/bds_search.py --ballistic`, counts fixed bins of the up angle instead: with bins, the
+count uniform random search should reach and the most any search could reach follow from the
+bins' shares of the box, which grouping in order of arrival does not give.)
 
 The thesis names its strategies by eye (§3.7.1). We group by feature instead: evaluations are
 taken in the order they were made, and each joins the first strategy whose representative (its

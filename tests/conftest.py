@@ -1,5 +1,5 @@
 """Shared test setup: float64 everywhere, the reference data directory, random states, dropped
-humanoids."""
+humanoids, the smallest high-jump training config."""
 
 import os
 import pathlib
@@ -92,3 +92,29 @@ def models(data_dir):
             dm / "characters" / "dog3d.txt", dm / "controllers" / "dog3d_ctrl.txt"),
     }
     return {name: m.astype(jnp.float64) for name, m in built.items()}
+
+
+def tiny_highjump_training(iterations=1, hidden=16, actions='actions = "pd"'):
+    """The TOML of the smallest high-jump training: 4 environments × 4 steps an iteration, a
+    network of one `hidden`-unit layer, 4-step episodes (0.13 s: no episode can clear the bar).
+    `actions` is the [highjump] line (or lines) choosing the action space."""
+    return f"""
+[run]
+task = "highjump"
+envs = 4
+steps_per_iteration = 4
+iterations = {iterations}
+checkpoint_every = 1
+devices = 1
+
+[ppo]
+hidden = [{hidden}]
+minibatch_size = 16
+epochs = 1
+
+[highjump]
+{actions}
+episode_steps = 4
+control_schedule = false
+control_hz = 30.0
+"""

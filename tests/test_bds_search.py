@@ -448,7 +448,7 @@ def test_takeoff_search_with_two_workers_and_a_resume_with_one(tmp_path, capsys)
     ("[search]\nbudget = 'many'\n", "key 'search.budget' must be an int; got 'many'"),
     ("[search]\nbudget = 0\n", r"\[search\]: budget must be at least 1"),
     ("black_box = 'oracle'\n", "black_box must be one of landscape"),
-    ("[box]\nlower = [0, 0]\nupper = [1, 1]\n", r"\[box\] has 2 dimensions but landscape.dim is 4"),
+    ("[box]\nlower = [0, 0]\nupper = [1, 1]\n", r"\[box\] has 2 dimensions but landscape.dim has 4"),
     ("[box]\nlower = [0, 0, 0, 1]\nupper = [1, 1, 1, 1]\n", "dimension 3 has lower 1.0"),
     ("[search\n", "not valid TOML"),
     ("[landscape]\nfeatures = 'random'\n", "features must be one of spread, positional"),

@@ -302,15 +302,14 @@ def run_file_cases():
 
 # Configs: every key of every config in configs/, given a value it must refuse.
 
-CONFIG_SCHEMAS = {"pvae.toml": pvae.PVAEConfig,
-                  "search_landscape.toml": strategy_search.SearchConfig}
-
-
-def config_loader(name):
-    """How the config file `name` is read: `load(path, overrides=())`."""
-    if name in CONFIG_SCHEMAS:
-        return lambda path, overrides=(): config_io.load(path, CONFIG_SCHEMAS[name], overrides)
-    return train_commands.load_config
+def config_loader(name, data):
+    """How the config file `name` (its table `data`) is read: `load(path, overrides=())` —
+    the P-VAE's, a search's (it names its black box) or a training's."""
+    schema = (pvae.PVAEConfig if name == "pvae.toml"
+              else strategy_search.SearchConfig if "black_box" in data else None)
+    if schema is None:
+        return train_commands.load_config
+    return lambda path, overrides=(): config_io.load(path, schema, overrides)
 
 
 def leaves(table, prefix=""):
@@ -338,7 +337,7 @@ def config_cases():
     cases = []
     for path in sorted((ROOT / "configs").glob("*.toml")):
         data = tomllib.loads(path.read_text())
-        loader = config_loader(path.name)
+        loader = config_loader(path.name, data)
         for key, value in leaves(data):
             for bad in bad_values(value):
                 override = f"{key}={bad}"

@@ -25,24 +25,10 @@ from agents.discovery import gallery, jump_black_box  # noqa: E402
 from agents.tasks import takeoff_state  # noqa: E402
 from bds import strategies  # noqa: E402
 from bds.search import Failure, SearchSettings, search  # noqa: E402
+from conftest import tiny_highjump_training  # noqa: E402
 from jaxsim import runlog  # noqa: E402
 from jaxsim.atomic import write_text_atomic  # noqa: E402
 
-TRAIN_TOML = """
-[run]
-task = "highjump"
-envs = 4
-steps_per_iteration = 4
-devices = 1
-[ppo]
-hidden = [16]
-minibatch_size = 16
-epochs = 1
-[highjump]
-actions = "pvae"
-pvae = "runs/no_such_pvae"
-episode_steps = 4
-"""
 # What each evaluation comes out as: a failure (its reason has HTML in it, which the page must
 # escape), up angles (rad) with the highest bar cleared, and one still training.
 REASON = "the policy cleared 0 of 2 episodes at 0.50 m <b>& fell</b>"
@@ -109,7 +95,8 @@ def _flight(env, x):
 def search_dir(tmp_path_factory, data_dir):
     root = tmp_path_factory.mktemp("gallery")
     train_toml = root / "train.toml"
-    train_toml.write_text(TRAIN_TOML)
+    train_toml.write_text(tiny_highjump_training(
+        actions='actions = "pvae"\npvae = "runs/no_such_pvae"'))
     out = root / "search"
     config = strategy_search.SearchConfig(
         black_box="jump",

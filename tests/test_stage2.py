@@ -26,29 +26,10 @@ from bds.novelty import novelty_reward
 from bds.search import Failure, SearchError, SearchSettings, logged_evaluations, search
 from jaxsim import rotations
 
+from conftest import tiny_highjump_training
 from test_cli import run as run_cli
 from test_jump import _hold, _placed, _run
 
-TINY_TRAINING = """
-[run]
-task = "highjump"
-envs = 4
-steps_per_iteration = 4
-iterations = 1
-checkpoint_every = 1
-devices = 1
-
-[ppo]
-hidden = [16]
-minibatch_size = 16
-epochs = 1
-
-[highjump]
-actions = "pd"
-episode_steps = 4
-control_schedule = false
-control_hz = 30.0
-"""
 QUIET = lambda *_: None     # noqa: E731
 STAGE1_BAR = 0.73           # the Stage-1 checkpoint's curriculum: the bar it had reached
 STAGE1_SAMPLES = 123_456
@@ -105,7 +86,7 @@ def test_the_novelty_reward_by_hand_with_the_geodesic_distance():
 # ------------------------------------------------------------------- [novelty] errors
 
 def _tiny(tmp_path, novelty=None, name="stage2.toml", hidden=16, takeoff=None):
-    text = TINY_TRAINING.replace("hidden = [16]", f"hidden = [{hidden}]")
+    text = tiny_highjump_training(hidden=hidden)
     if takeoff is not None:
         text += f"takeoff = {list(takeoff)}\n"
     if novelty is not None:

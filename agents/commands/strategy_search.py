@@ -86,12 +86,15 @@ class SearchConfig:
                 raise ValueError(f"[box]: {error}") from None
             if lower.size != dim:
                 raise ValueError(f"[box] has {lower.size} dimensions but {what} has {dim}")
-        feature_dim = self.landscape.feature_dim if self.black_box == "landscape" else 1
+        if self.black_box == "landscape":
+            feature_dim = self.landscape.feature_dim
+            what = f"landscape.feature_dim = {feature_dim}"
+        else:
+            feature_dim, what = 1, f"the {self.black_box} black box's feature (1 number)"
         try:
             self.search.check_feature_dim(feature_dim)
         except ValueError as error:
-            raise ValueError(f"[search] does not fit the black box's features of "
-                             f"{feature_dim} numbers: {error}") from None
+            raise ValueError(f"[search] does not fit {what}: {error}") from None
 
     def task(self) -> str:
         """The jump task of a `jump` black box (the one its training config trains) or of a
