@@ -205,7 +205,14 @@ def test_ctrl_c_stops_every_process_with_a_checkpoint(cache, tmp_path):
             assert time.monotonic() < deadline, "no iteration logged in 4 minutes"
             time.sleep(0.2)
         launcher.send_signal(signal.SIGINT)
-        output, _ = launcher.communicate(timeout=120)
+        try:
+            output, _ = launcher.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            launcher.kill()
+            for pid in _running(run_dir):    # its children, in their own sessions, with it
+                os.kill(pid, signal.SIGKILL)
+            pytest.fail("the run did not stop within 2 minutes of Ctrl-C; its output:\n"
+                        + launcher.communicate()[0][-4000:])
     finally:
         if launcher.poll() is None:
             launcher.kill()
