@@ -21,9 +21,11 @@ draws.
 
 A member is a dict {dotted key: value}; `overrides(member)` gives it as `--set` strings, which
 `agents.config` applies and checks against the config's schema (an unknown key or a wrong type
-is then a ConfigError naming the key). This module checks the table itself: an empty list, an
-unknown distribution, a range backwards or (log-uniform) not positive, `samples` missing or
-given without a distribution, each named by its key.
+is then a ConfigError naming the key). This module checks the table itself: an empty list, a
+value that is neither a list nor a distribution, two distributions in one key, a range backwards
+or (log-uniform) not positive, `samples` missing or given without a distribution, each named by
+its key. A table whose key is not a distribution's name (`{normal = […]}`) reads as a deeper
+config key (`….normal`), which the config's schema then refuses.
 """
 
 import itertools

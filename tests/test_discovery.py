@@ -19,7 +19,6 @@ from bds.search import Failure, logged_evaluations
 from conftest import tiny_highjump_training
 
 
-
 def _search_config(tmp_path, samples):
     train = tmp_path / "train.toml"
     train.write_text(tiny_highjump_training(iterations=1000))
@@ -91,7 +90,8 @@ def test_a_search_killed_mid_training_resumes_it_and_records_the_failure(tmp_pat
     assert episode["poses"].shape[0] >= 1 and (directory / jump_black_box.PEAK).stat().st_size
 
     log_text = (out / "evaluations.jsonl").read_text()
-    strategy_search.run(config, out, data_dir=data_dir, echo=lambda *_: None)
+    result = strategy_search.run(config, out, data_dir=data_dir, echo=lambda *_: None)
+    assert result.failures == [record["failure"]] and np.isnan(result.features).all()
     assert (out / "evaluations.jsonl").read_text() == log_text
     assert _metrics(train_dir) == after
 
