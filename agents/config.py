@@ -70,10 +70,13 @@ def load(path, schema, overrides=()):
 
 def read(path, overrides=()) -> dict:
     """The TOML file at `path` as nested dicts, with `overrides` ("a.b=value") applied; a file
-    that holds no settings at all is refused (it would silently run on every default)."""
+    that holds no settings at all is refused (it would silently run on every default). A
+    `.json` file is read as a stored config (a run's config.json, a sweep's base.json)."""
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"{path}: is a directory, not a config file (give a .toml file)")
+    if path.suffix == ".json":
+        return _with_overrides(read_stored(path), overrides, path)
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)
@@ -83,6 +86,10 @@ def read(path, overrides=()) -> dict:
         raise ConfigError(f"{path}: cannot be read ({error.strerror or error})") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise ConfigError(f"{path}: not valid TOML: {error}") from None
+    return _with_overrides(data, overrides, path)
+
+
+def _with_overrides(data, overrides, path):
     if not data:
         raise ConfigError(f"{path}: the file holds no settings")
     for override in overrides:

@@ -6,13 +6,16 @@ The table names config keys (dotted, as `--set` does; TOML nests `ppo.clip = …
     [sweep]
     ppo.clip = [0.1, 0.2, 0.3]                  # a grid: these values
     "world.gravity" = [-9.81, -3.7]
+    physics.leg_length_scale = {linspace = [0.8, 1.2, 64]}   # a grid of 64 values
     ppo.policy_lr = {log_uniform = [1e-5, 1e-3]}  # random draws
     run.seed = {choice = [0, 1, 2]}
     highjump.z_min = {uniform = [0.4, 0.6]}
     samples = 8                                 # how many draws (with any distribution)
     seed = 0                                    # the draws' seed
 
-Lists make a grid: every combination of their values, the first key varying slowest. Each
+Lists, `{linspace = [low, high, n]}` and `{logspace = [low, high, n]}` (n values evenly spaced,
+on a log scale for the latter) make a grid: every combination of their values, the first key
+varying slowest. Each
 distribution (`uniform`, `log_uniform`, `choice`) is drawn `samples` times; with a grid as well,
 every grid point is crossed with the same `samples` draws, so its members differ only in the grid's
 keys. The draws come from `numpy.random.default_rng(seed)`, key by key in sorted order, so the
@@ -37,7 +40,9 @@ import numpy as np
 from agents.config import ConfigError
 
 DISTRIBUTIONS = ("uniform", "log_uniform", "choice")
-SETTINGS = ("samples", "seed")                 # the table's own keys, not config keys
+RANGES = ("linspace", "logspace")
+# The table's own keys, not config keys: the draws', and how the sweep runs (`agents.sweep`).
+SETTINGS = ("samples", "seed", "evaluate", "episodes", "difficulty", "workers")
 MAX_MEMBERS = 100_000
 
 
@@ -54,6 +59,8 @@ def expand(table: dict, source) -> list[dict]:
             if not spec:
                 raise ConfigError(f"{source}: {where} is an empty list: give the values to sweep")
             grid[key] = spec
+        elif isinstance(spec, dict) and len(spec) == 1 and set(spec) <= set(RANGES):
+            grid[key] = _range(spec, source, where)
         elif isinstance(spec, dict):
             drawn[key] = _distribution(spec, source, where)
         else:
@@ -90,7 +97,7 @@ def _leaves(table, prefix=""):
     """(dotted key, spec) for each swept key of the nested table: a dict whose keys are all
     distribution names is a spec, any other dict a namespace."""
     for key, value in table.items():
-        if isinstance(value, dict) and not set(value) <= set(DISTRIBUTIONS):
+        if isinstance(value, dict) and not set(value) <= {*DISTRIBUTIONS, *RANGES}:
             yield from _leaves(value, f"{prefix}{key}.")
         else:
             yield prefix + key, value
@@ -117,6 +124,24 @@ def _distribution(spec, source, where):
     if name == "log_uniform" and low <= 0:
         raise ConfigError(f"{source}: {where}.log_uniform needs low > 0; got {argument!r}")
     return name, (low, high)
+
+
+def _range(spec, source, where):
+    """The values of a `{linspace = [low, high, n]}` or `{logspace = …}` grid key."""
+    [(name, argument)] = spec.items()
+    if (not isinstance(argument, list) or len(argument) != 3
+            or not all(_is_number(a) for a in argument)
+            or isinstance(argument[2], float) or argument[2] < 1):
+        raise ConfigError(f"{source}: {where}.{name} must be [low, high, n], two numbers and a "
+                          f"whole number of values n ≥ 1; got {argument!r}")
+    low, high, count = float(argument[0]), float(argument[1]), argument[2]
+    if not (math.isfinite(low) and math.isfinite(high)):
+        raise ConfigError(f"{source}: {where}.{name} must have finite ends; got {argument!r}")
+    if name == "logspace":
+        if low <= 0 or high <= 0:
+            raise ConfigError(f"{source}: {where}.logspace needs ends > 0; got {argument!r}")
+        return np.geomspace(low, high, count).tolist()
+    return np.linspace(low, high, count).tolist()
 
 
 def _draw(drawn, samples, seed):

@@ -207,6 +207,18 @@ def _cmd_eval(args):
         raise SystemExit(f"takeoff eval: {error}")
 
 
+def _cmd_sweep(args):
+    from agents import sweep
+    from jaxsim.executor import ExecutorError
+
+    try:
+        sweep.run(args.config, args.out, args.set, args.data_dir)
+    except (*run_errors(), ExecutorError) as error:
+        raise SystemExit(f"takeoff sweep: {error}")
+    except KeyboardInterrupt:
+        raise SystemExit(130)
+
+
 def _cmd_plot(args):
     from agents.commands import train_commands
 
@@ -351,6 +363,17 @@ def build_parser():
                    help="also write an animation of episode 0")
     p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_eval)
+    p = sub.add_parser("sweep", help="run every member of a config's [sweep] table: a trained "
+                                     "policy evaluated over task parameters in one call, or "
+                                     "one training per member (rerun: resumes)")
+    p.add_argument("config", help="a config with a [sweep] table, e.g. "
+                                  "configs/sweep_highjump_body.toml")
+    p.add_argument("--out", help="sweep directory (default runs/<config name>); an existing one "
+                                 "of the same sweep is resumed")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a config value (repeatable)")
+    p.add_argument("--data-dir", help=DATA_DIR_HELP)
+    p.set_defaults(run=_cmd_sweep)
     p = sub.add_parser("motion", help="a run-up policy and a jump policy as one full motion: "
                                       "GIF, filmstrip, BVH and summary.json")
     p.add_argument("runup_dir", help="a run directory of the runup task")

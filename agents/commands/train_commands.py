@@ -2,8 +2,10 @@
 
 A config has three sections: `[run]` (which task, how many environments, how long), `[ppo]`,
 and the section of its task, named after it (`[imitation]`, `[reach]`, `[highjump]`, …; the
-tasks are registered in `agents.tasks.registry`); a jump task's config may have a fourth,
-`[novelty]`, which makes the run Stage 2 of strategy discovery (`agents.discovery.stage2`).
+tasks are registered in `agents.tasks.registry`); a jump task's config may have a
+`[novelty]` section, which makes the run Stage 2 of strategy discovery
+(`agents.discovery.stage2`), and a `[physics]` section, factors on its body and world
+(`agents.tasks.physics`).
 A run directory holds the resolved config (`config.json`), `metrics.jsonl` (one line per
 iteration), `checkpoint.msgpack` (written atomically) and `learning_curve.png`. A resumed run
 may change how long it runs, its learning settings and its task's settings with `--set`, but
@@ -31,6 +33,7 @@ from agents.discovery import stage2
 from agents.rl.ppo import PPOSettings
 from agents.rl.rollout import make_rollout, start_runner
 from agents.rl.trainer import RunSettings
+from agents.tasks import physics as physics_lib
 from agents.tasks import registry
 from jaxsim import xla_options
 from jaxsim.atomic import check_writable, write_text_atomic
@@ -48,12 +51,17 @@ class TrainConfig:
     ppo: PPOSettings = field(default_factory=PPOSettings)
     task: Any = None
     novelty: stage2.NoveltySettings | None = None      # Stage 2 (agents.discovery.stage2)
+    physics: physics_lib.PhysicsSettings | None = None  # body and world factors
 
     def __post_init__(self):
         if not self.run.task:
             raise ValueError(f"run.task must name the task to train: one of "
                              f"{', '.join(registry.names())}")
         entry = registry.get(self.run.task)
+        if self.physics is not None and not entry.takes_physics:
+            raise ValueError(f"the task {self.run.task!r} does not take a [physics] section; "
+                             "the tasks that do: " + ", ".join(
+                                 n for n in registry.names() if registry.get(n).takes_physics))
         if not isinstance(self.task, entry.settings):
             raise ValueError(f"the [{self.run.task}] settings must be a "
                              f"{entry.settings.__name__}; got {type(self.task).__name__}")
@@ -72,7 +80,8 @@ class TrainConfig:
         """The config as nested dicts, its task's section under the task's name (config.json)."""
         return {"run": dataclasses.asdict(self.run), "ppo": dataclasses.asdict(self.ppo),
                 self.run.task: dataclasses.asdict(self.task),
-                **({} if self.novelty is None else {"novelty": dataclasses.asdict(self.novelty)})}
+                **({} if self.novelty is None else {"novelty": dataclasses.asdict(self.novelty)}),
+                **({} if self.physics is None else {"physics": dataclasses.asdict(self.physics)})}
 
     @property
     def fixed_on_resume(self) -> tuple[str, ...]:
@@ -105,18 +114,20 @@ def build_config(data: dict, source) -> TrainConfig:
         entry = registry.get(task)
     except ValueError as error:
         raise config_io.ConfigError(f"{source}: [run]: {error}") from None
-    unknown = sorted(set(data) - {"run", "ppo", task, "novelty"})
+    unknown = sorted(set(data) - {"run", "ppo", task, "novelty", "physics"})
     if unknown:
         raise config_io.ConfigError(
             f"{source}: unknown section {unknown[0]!r}; a config for the task {task!r} takes "
-            f"[run], [ppo], [{task}] and (Stage 2) [novelty]")
+            f"[run], [ppo], [{task}], [physics] and (Stage 2) [novelty]")
     sections = config_io.build(_Sections, {k: data[k] for k in ("run", "ppo") if k in data},
                                source)
     settings = config_io.build(entry.settings, data.get(task, {}), source, f"{task}.")
     novelty = (config_io.build(stage2.NoveltySettings, data["novelty"], source, "novelty.")
                if "novelty" in data else None)
+    physics = (config_io.build(physics_lib.PhysicsSettings, data["physics"], source, "physics.")
+               if "physics" in data else None)
     try:
-        return TrainConfig(sections.run, sections.ppo, settings, novelty)
+        return TrainConfig(sections.run, sections.ppo, settings, novelty, physics)
     except ValueError as error:
         raise config_io.ConfigError(f"{source}: config: {error}") from None
 
@@ -129,7 +140,22 @@ def load_config(path, overrides=()) -> TrainConfig:
 def make_env(config: TrainConfig, data_dir=None):
     entry = config.entry
     env = entry.make_env(config.task, data_dir_from(data_dir) if entry.needs_data else None)
+    if config.physics is not None:
+        try:
+            physics_lib.check_fits(env.model, config.physics)
+        except ValueError as error:
+            raise config_io.ConfigError(str(error)) from None
     return env if config.novelty is None else stage2.novelty_env(env, config.novelty)
+
+
+def task_params(config: TrainConfig, env) -> dict:
+    """The task parameters of the config's environment `env`: its defaults, with the
+    `[physics]` factors when the config has that section."""
+    params = env.default_params()
+    if config.physics is None:
+        return params
+    dtype = jax.tree_util.tree_leaves(params)[0].dtype
+    return {**params, "physics": physics_lib.params_of(config.physics, dtype)}
 
 
 def make_trainer(config: TrainConfig, data_dir=None) -> trainer_lib.Trainer:
@@ -145,7 +171,7 @@ def make_trainer(config: TrainConfig, data_dir=None) -> trainer_lib.Trainer:
 @functools.lru_cache(maxsize=8)
 def _compiled_trainer(config: TrainConfig, data_dir) -> trainer_lib.Trainer:
     env = make_env(config, data_dir)
-    return trainer_lib.Trainer(env, env.default_params(), config.run, config.ppo)
+    return trainer_lib.Trainer(env, task_params(config, env), config.run, config.ppo)
 
 
 def _trainer_for(config: TrainConfig, source, data_dir) -> trainer_lib.Trainer:
@@ -164,6 +190,27 @@ def load_run_config(run_dir) -> TrainConfig:
     return build_config(config_io.read_stored(path), str(path))
 
 
+def train_or_resume(config_path, run_dir, overrides=(), data_dir=None, echo=print,
+                    finished=None, resume_overrides=None):
+    """Train the run of `config_path` with `overrides` in `run_dir`, or, when `run_dir` already
+    holds a checkpoint (a run killed part way), resume it: not at all when `finished(config,
+    last metrics record)` says its budget was spent (by default: all its iterations done),
+    else with the overrides `resume_overrides(config, last record)` gives (default: none). The
+    rule every command that runs trainings as parts of its own work follows (a sweep's members,
+    a search's evaluations), so a killed one loses at most one checkpoint interval."""
+    run_dir = Path(run_dir)
+    if not (run_dir / trainer_lib.CHECKPOINT).exists():
+        return train(config_path, run_dir, overrides, data_dir=data_dir, echo=echo)
+    config = load_run_config(run_dir)
+    records = trainer_lib.read_metrics(run_dir)
+    last = records[-1] if records else {}
+    done = (finished(config, last) if finished is not None
+            else last.get("iteration", 0) >= config.run.iterations)
+    if not done:
+        train(resume=run_dir, data_dir=data_dir, echo=echo,
+              overrides=resume_overrides(config, last) if resume_overrides else ())
+
+
 def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=None,
           echo=print, cluster=None):
     """Start a run from a config (in out_dir, default runs/<config name>) or resume one. With
@@ -176,7 +223,7 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
         source = run_dir / CONFIG
         config = load_run_config(run_dir)
         if overrides:
-            config = _resume_overrides(config, overrides, source)
+            config = overridden(config, overrides, source)
     else:
         source = config_path
         config = load_config(config_path, overrides)
@@ -279,9 +326,9 @@ def _check_memory(need: int, source, what: str):
             "available")
 
 
-def _resume_overrides(config: TrainConfig, overrides, source) -> TrainConfig:
-    """The config of a resumed run with `overrides` applied; a ConfigError if one changes a key
-    of its `fixed_on_resume`."""
+def overridden(config: TrainConfig, overrides, source) -> TrainConfig:
+    """The config of a run (to resume or evaluate it) with `overrides` applied; a ConfigError
+    if one changes a key of its `fixed_on_resume`."""
     data = json.loads(json.dumps(config.sections()))    # tuples become lists
     for override in overrides:
         config_io.apply_override(data, override, source)
@@ -304,20 +351,24 @@ def _get(sections, key):
 class Episodes(NamedTuple):
     """Deterministic evaluation episodes of a trained policy (`run_episodes`)."""
     summary: dict          # means over each environment's first episode (see `evaluate`)
-    outcomes: dict         # per environment: each `episode/` metric where its first episode ended
+    outcomes: dict         # per environment: its first episode's return and length, and each
+                           # `episode/` metric where that episode ended
     env: object            # the environment, at the difficulty evaluated
     poses: np.ndarray      # (steps, nq) of environment 0's first episode, one per control step
     task: dict             # environment 0's task values at its reset (to draw its world)
 
 
 def run_episodes(run_dir, episodes: int = 8, data_dir=None, difficulty=None, echo=print,
-                 check_writable_path=None) -> Episodes:
+                 check_writable_path=None, overrides=(), vary=None) -> Episodes:
     """Run the deterministic policy (the Gaussian's mean) of the run in `run_dir` for one
     episode in each of `episodes` environments, at the run's curriculum difficulty or at
-    `difficulty` (the jump tasks' bar height / obstacle width)."""
-    config = load_run_config(run_dir)
+    `difficulty` (the jump tasks' bar height / obstacle width), under the run's config with
+    `overrides` ("key=value", as `--set`). `vary(params)`, when given, turns the task
+    parameters (one set per environment, all alike) into those to run (a sweep's members)."""
+    source = Path(run_dir) / CONFIG
+    config = overridden(load_run_config(run_dir), overrides, source)
     config = dataclasses.replace(config, run=dataclasses.replace(config.run, devices=1))
-    source = Path(run_dir) / CONFIG            # (evaluation runs on one device, however the
+                                               # (evaluation runs on one device, however the
     trainer = _trainer_for(config, source, data_dir)      # run was trained)
     env = trainer.env_for(trainer.curriculum.init())
     state_bytes, sample_bytes = trainer.footprint(episodes, env.episode_steps)
@@ -334,6 +385,8 @@ def run_episodes(run_dir, episodes: int = 8, data_dir=None, difficulty=None, ech
             difficulty, jnp.asarray(curriculum["difficulty"]).dtype)}
     env = trainer.env_for(curriculum)                # at the difficulty evaluated
     params = trainer.env_params_for(curriculum, episodes)
+    if vary is not None:
+        params = vary(params)
     rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply,
                                    env.episode_steps, deterministic=True, keep_physics=True,
                                    params_axis=0),
@@ -354,8 +407,10 @@ def run_episodes(run_dir, episodes: int = 8, data_dir=None, difficulty=None, ech
                "terminated": float((np.asarray(batch.terminated) * first).any(0).mean()),
                **{k: _mean(np.asarray(v), at_end if k.startswith("episode/") else first)
                   for k, v in metrics.items()}}
-    outcomes = {k: np.where(at_end.any(0), (np.asarray(v) * at_end).sum(0), np.nan)
-                for k, v in metrics.items() if k.startswith("episode/")}
+    outcomes = {"return": (np.asarray(batch.reward) * first).sum(0),
+                "episode_length": steps.astype(float),
+                **{k: np.where(at_end.any(0), (np.asarray(v) * at_end).sum(0), np.nan)
+                   for k, v in metrics.items() if k.startswith("episode/")}}
     task = jax.tree_util.tree_map(lambda x: x[0], runner.envs.task)
     return Episodes(summary, outcomes, env, np.asarray(physics.q)[:int(steps[0]), 0], task)
 

@@ -117,26 +117,25 @@ class JumpBlackBox:
     def _train(self, run_dir: Path, x):
         from agents.commands import train_commands
         from agents.rl import trainer as trainer_lib
-        echo = _prefixed(f"  [g {run_dir.parent.name}] ")
-        if not (run_dir / trainer_lib.CHECKPOINT).exists():
-            train_commands.train(self.settings.train, run_dir, self._overrides(x, train_commands),
-                                 data_dir=self.data_dir, echo=echo)
-            return
-        config = train_commands.load_run_config(run_dir)
-        if not np.allclose(config.sections()[config.run.task]["takeoff"], x, atol=1e-6):
-            raise SearchError(f"{run_dir} trains from another take-off state than x = "
-                              f"{x.tolist()}; the directory belongs to another search")
-        records = trainer_lib.read_metrics(run_dir)
-        last = records[-1] if records else {}
-        minutes_left = self.settings.minutes - last.get("seconds", 0.0) / 60
-        if (last.get("iteration", 0) >= config.run.iterations
-                or last.get(trainer_lib.DIFFICULTY, -1) >= config.run.stop_difficulty
-                - DIFFICULTY_TOLERANCE
-                or (self.settings.minutes and minutes_left <= 0)):
-            return                                      # its budget was spent before the kill
-        limit = max(minutes_left, 1e-3) if self.settings.minutes else 0.0
-        train_commands.train(resume=run_dir, overrides=[f"run.time_limit_minutes={limit}"],
-                             data_dir=self.data_dir, echo=echo)
+        minutes = self.settings.minutes
+        minutes_left = lambda last: minutes - last.get("seconds", 0.0) / 60
+
+        def finished(config, last):
+            if not np.allclose(config.sections()[config.run.task]["takeoff"], x, atol=1e-6):
+                raise SearchError(f"{run_dir} trains from another take-off state than x = "
+                                  f"{x.tolist()}; the directory belongs to another search")
+            return (last.get("iteration", 0) >= config.run.iterations
+                    or last.get(trainer_lib.DIFFICULTY, -1) >= config.run.stop_difficulty
+                    - DIFFICULTY_TOLERANCE
+                    or (minutes and minutes_left(last) <= 0))
+
+        def resume_overrides(config, last):     # the time budget left (the kill's is spent)
+            limit = max(minutes_left(last), 1e-3) if minutes else 0.0
+            return [f"run.time_limit_minutes={limit}"]
+
+        train_commands.train_or_resume(
+            self.settings.train, run_dir, self._overrides(x, train_commands), self.data_dir,
+            _prefixed(f"  [g {run_dir.parent.name}] "), finished, resume_overrides)
 
     def _measure(self, directory: Path, index: int, x) -> dict:
         """Evaluate the trained policy (see the module docstring), keep its files, return its

@@ -70,6 +70,7 @@ from agents.pose import pose_features, pvae
 from agents.rl.curriculum import RewardAccumulator
 from agents.rl.env import end_of_step, start_of_episode
 from agents.tasks import common, registry, takeoff_state
+from agents.tasks import physics as physics_lib
 from agents.tasks.observations import body_observation, observation_size
 from jaxsim import characters, kinematics, motion, rotations, simulation
 from jaxsim.characters.athlete import joint_dofs, scaled_torque_limits
@@ -396,31 +397,42 @@ class JumpEnv:
 
     def reset(self, params, key):
         """The take-off state of x = params["takeoff"], at the episode's difficulty."""
-        qd = takeoff_state.takeoff_velocity(self.kind, self.model, self.q0, self.qd0,
+        model, _ = self.physical(params, self.world)
+        q0 = (self.q0 if model is self.model else
+              takeoff_state.grounded(model, self.q0, self.takeoff.foot))
+        qd = takeoff_state.takeoff_velocity(self.kind, model, q0, self.qd0,
                                             params["takeoff"], self._takeoff_foot)
-        physics = simulation.init_state(self.model, self.world, self.q0, qd)
+        physics = simulation.init_state(model, self.world, q0, qd)
         dtype = self.q0.dtype
         zero = jnp.zeros((), dtype)
-        com = kinematics.center_of_mass(self.model, self.q0)
+        com = kinematics.center_of_mass(model, q0)
         task = {"takeoff": params["takeoff"], "difficulty": params["difficulty"],
                 "c_offset": params["c_offset"], "omega_sum": zero, "offset_sum": zero,
                 "crossed": jnp.zeros((), bool), "cross_rotvec": jnp.zeros(3, dtype),
                 "up_angle": zero, "clearance": zero, "peak_com": com[1],
                 "landed": jnp.zeros((), bool), "unsafe": jnp.zeros((), bool)}
-        return start_of_episode(physics, body_observation(self.model, physics.q, physics.qd),
+        return start_of_episode(physics, body_observation(model, physics.q, physics.qd),
                                 key, task, self._metrics(
                                     task, *(jnp.zeros((), bool),) * 2, zero,
                                     dict.fromkeys(FAILURES, jnp.zeros((), bool))))
 
-    def _crossing(self, task, geometry=None):
+    def physical(self, params, world):
+        """(model, world) of an episode: the task's, with the `[physics]` factors of
+        `params["physics"]` applied when the config has that section (`agents.tasks.physics`)."""
+        if "physics" not in params:
+            return self.model, world
+        return physics_lib.varied(self.model, world, params["physics"])
+
+    def _crossing(self, task, geometry=None, model=None):
         """The per-substep observer: the root's orientation at the first substep where the
         centre of mass is past the crossing plane (bar plane; obstacle centre plane), and the
         peak centre-of-mass height."""
         normal, origin, _, cross, bar_top, *_ = (self.geometry(task) if geometry is None
                                                  else geometry)
+        model = self.model if model is None else model
 
         def observe(state, seen):
-            com = kinematics.center_of_mass(self.model, state.q)
+            com = kinematics.center_of_mass(model, state.q)
             now = ~seen["crossed"] & (jnp.dot(com - origin, normal) - cross >= 0)
             rot = rotations.quat_to_matrix(state.q[3:7])
             relative = rotations.matrix_to_rotvec(self.heading.T @ rot)
@@ -438,11 +450,12 @@ class JumpEnv:
         observed, then the rules and, at success, the reward."""
         task = state.task
         geometry = self.geometry(task)                 # fixed for the episode at its reset
-        world = common.world_of(self.world_for(task, geometry), params)
+        model, world = self.physical(
+            params, common.world_of(self.world_for(task, geometry), params))
         target, offset = self.pd_target(action)
         stepped, touched, task = common.simulate_control_step(
-            self.model, world, state.physics, target, 1.0 / self.settings.sim_hz,
-            self.substeps, self.settings.method, observe=self._crossing(task, geometry),
+            model, world, state.physics, target, 1.0 / self.settings.sim_hz,
+            self.substeps, self.settings.method, observe=self._crossing(task, geometry, model),
             observed=task)
         physics, finite = common.keep_sound(stepped, state.physics)
         task = jax.tree_util.tree_map(lambda new, old: jnp.where(finite, new, old), task,
@@ -456,7 +469,7 @@ class JumpEnv:
                       jnp.any(on_block & ~np.isin(np.arange(len(on_block)), self._feet)))
         task = {**task, "landed": task["landed"] | on_block.any(),
                 "unsafe": task["unsafe"] | (first_touch & unsafe_now)}
-        _, pos = kinematics.forward_kinematics(self.model, physics.q)
+        _, pos = kinematics.forward_kinematics(model, physics.q)
         normal, origin, far, *_ = geometry
         past = jnp.all((pos - origin) @ normal > far + CLEAR_MARGIN)
         landed = jnp.any(on_block[self._torso]) | (jnp.sum(on_block) >= 4)
@@ -470,7 +483,7 @@ class JumpEnv:
         failed = functools.reduce(jnp.logical_or, causes.values())
         reward, terms = self.reward(task, state.steps + 1)
         reward = jnp.where(success, reward, 0.0)
-        obs = body_observation(self.model, physics.q, physics.qd)
+        obs = body_observation(model, physics.q, physics.qd)
         return end_of_step(state, physics, obs, reward, success | failed, task,
                            self._metrics(task, success, failed, reward, causes),
                            self.episode_steps)
@@ -510,6 +523,8 @@ def _make(settings, data_dir):
 
 
 registry.register(registry.Task("highjump", HighJumpSettings, _make,
-                                fixed_on_resume=("character", "actions", "pvae")))
+                                fixed_on_resume=("character", "actions", "pvae"),
+                                takes_physics=True, vmappable=("gravity", "takeoff")))
 registry.register(registry.Task("obstacle", ObstacleSettings, _make,
-                                fixed_on_resume=("character", "actions", "pvae")))
+                                fixed_on_resume=("character", "actions", "pvae"),
+                                takes_physics=True, vmappable=("gravity", "takeoff")))

@@ -21,13 +21,18 @@ class Task:
     """One task: `settings` is its config section's frozen dataclass; `make_env(settings,
     data_dir)` builds its environment (`data_dir` is the reference-data directory named by the
     user, or None when `needs_data` is false); `fixed_on_resume` names the settings fields a
-    resumed run cannot change."""
+    resumed run cannot change; `takes_physics` says its environment applies the `[physics]`
+    section (`agents.tasks.physics`), and `vmappable` names its settings fields that its
+    environment reads from the task parameters of the same name (`agents.sweep`)."""
 
     name: str
     settings: type
     make_env: Callable[[Any, Any], Any]
     fixed_on_resume: tuple[str, ...] = ()
     needs_data: bool = True
+    takes_physics: bool = False        # its environment applies a config's [physics] section
+    vmappable: tuple[str, ...] = ()    # settings fields that are task parameters of the same
+                                       # name (a sweep vmaps over them)
 
 
 _TASKS: dict[str, Task] = {}
