@@ -219,6 +219,15 @@ def _cmd_sweep(args):
         raise SystemExit(130)
 
 
+def _cmd_sensitivity(args):
+    from agents.commands import sensitivity_command
+
+    try:
+        sensitivity_command.run(args.config, args.out, args.set, args.data_dir)
+    except run_errors() as error:
+        raise SystemExit(f"takeoff sensitivity: {error}")
+
+
 def _cmd_plot(args):
     from agents.commands import train_commands
 
@@ -374,6 +383,16 @@ def build_parser():
                    help="override a config value (repeatable)")
     p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_sweep)
+    p = sub.add_parser("sensitivity", help="the gradient of a rollout's outcome with respect "
+                                           "to named parameters, beside finite differences")
+    p.add_argument("config", help="a config with a [sensitivity] section, e.g. "
+                                  "configs/sensitivity_highjump.toml")
+    p.add_argument("--out", help="where to write the table and chart (default "
+                                 "runs/<config name>)")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a config value (repeatable)")
+    p.add_argument("--data-dir", help=DATA_DIR_HELP)
+    p.set_defaults(run=_cmd_sensitivity)
     p = sub.add_parser("motion", help="a run-up policy and a jump policy as one full motion: "
                                       "GIF, filmstrip, BVH and summary.json")
     p.add_argument("runup_dir", help="a run directory of the runup task")
