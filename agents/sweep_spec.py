@@ -135,6 +135,9 @@ def _range(spec, source, where):
         raise ConfigError(f"{source}: {where}.{name} must be [low, high, n], two numbers and a "
                           f"whole number of values n ≥ 1; got {argument!r}")
     low, high, count = float(argument[0]), float(argument[1]), argument[2]
+    if count > MAX_MEMBERS:
+        raise ConfigError(f"{source}: {where}.{name} asks for {count:,} values, more than "
+                          f"{MAX_MEMBERS:,}; sweep fewer values")
     if not (math.isfinite(low) and math.isfinite(high)):
         raise ConfigError(f"{source}: {where}.{name} must have finite ends; got {argument!r}")
     if name == "logspace":

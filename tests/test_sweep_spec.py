@@ -120,3 +120,27 @@ highjump.takeoff = [[1.65, 1.00, 0.88, -2.21]]
     [member] = expand(table("[sweep]\nppo.clip = {normal = [0.1]}\n"), "s.toml")
     with pytest.raises(ConfigError, match="ppo.clip.normal=0.1"):
         train_commands.load_config("configs/highjump.toml", overrides(member))
+
+
+def test_linspace_and_logspace_make_grid_keys():
+    members = expand(table("""
+[sweep]
+physics.leg_length_scale = {linspace = [0.8, 1.2, 5]}
+physics.gravity_scale = {logspace = [0.1, 10.0, 3]}
+"""), "s.toml")
+    assert len(members) == 15
+    assert [m["physics.leg_length_scale"] for m in members[::3]] == pytest.approx(
+        [0.8, 0.9, 1.0, 1.1, 1.2])
+    assert [m["physics.gravity_scale"] for m in members[:3]] == pytest.approx([0.1, 1.0, 10.0])
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("{linspace = [0.8, 1.2]}", r"sweep\.k\.linspace must be \[low, high, n\]"),
+    ("{linspace = [0.8, 1.2, 2.5]}", "a whole number of values"),
+    ("{linspace = [0.8, 1.2, 0]}", "n ≥ 1"),
+    ("{logspace = [0.0, 1.0, 3]}", r"sweep\.k\.logspace needs ends > 0"),
+    ("{linspace = [0.0, 1.0, 1000000]}", "more than 100,000"),
+])
+def test_bad_ranges_are_refused_naming_the_key(spec, message):
+    with pytest.raises(ConfigError, match=message):
+        expand(table(f"[sweep]\nk = {spec}\n"), "s.toml")

@@ -1,0 +1,142 @@
+"""`takeoff sweep` (`agents.sweep`): an evaluation sweep's members, run in one call, equal each
+member's config run alone; keys that cannot be vmapped are refused by name; a training sweep
+killed (SIGKILL) part way resumes without training a finished member again; the report has a
+row per member."""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from agents import sweep
+from agents.commands import train_commands
+from agents.config import ConfigError
+from conftest import tiny_highjump_training
+
+
+@pytest.fixture(scope="module")
+def jump_run(tmp_path_factory, data_dir):
+    """A one-iteration high-jump run (PD actions): a policy to evaluate."""
+    folder = tmp_path_factory.mktemp("sweep_jump")
+    config = folder / "tiny.toml"
+    config.write_text(tiny_highjump_training(1))
+    run_dir = folder / "run"
+    train_commands.train(config, run_dir, data_dir=data_dir, echo=lambda *_: None)
+    return run_dir
+
+
+def test_vmapped_members_equal_each_member_run_alone(tmp_path, jump_run, data_dir):
+    """Leg length × gravity (the [physics] factors) and the take-off x as one rollout of
+    members × episodes environments: each member's outcomes are those of the run's policy
+    evaluated alone under that member's config (float32: to 1e-6)."""
+    config = tmp_path / "sweep.toml"
+    config.write_text(f"""
+[sweep]
+evaluate = "{jump_run}"
+episodes = 2
+"physics.leg_length_scale" = {{linspace = [0.9, 1.1, 2]}}
+physics.gravity_scale = [0.5, 1.0]
+highjump.takeoff = [[-0.5, -3.0, 2.0, -2.4]]
+""")
+    out = sweep.run(config, tmp_path / "out", data_dir=data_dir, echo=lambda *_: None)
+    rows = [json.loads(line) for line in (out / sweep.ROWS).read_text().splitlines()]
+    assert [r["member"] for r in rows] == [0, 1, 2, 3]
+    # the outcomes vary with the members: longer legs stand higher, so the apex is higher
+    assert rows[2]["peak_com"] > rows[0]["peak_com"] + 0.05
+    assert rows[0]["peak_com"] != rows[1]["peak_com"]
+    for row in rows[2:3]:                                          # (legs 1.1, gravity 0.5)
+        alone = train_commands.run_episodes(
+            jump_run, 2, data_dir, echo=lambda *_: None, overrides=[
+                f"physics.leg_length_scale={row['physics.leg_length_scale']}",
+                f"physics.gravity_scale={row['physics.gravity_scale']}",
+                "highjump.takeoff=[-0.5, -3.0, 2.0, -2.4]"])
+        for name in ("peak_com", "return", "episode_length", "success"):
+            values = alone.outcomes[name if name in ("return", "episode_length")
+                                    else f"episode/{name}"]
+            assert row[name] == pytest.approx(float(np.mean(values)), abs=1e-6), name
+    table = list(csv.DictReader((out / "sweep.csv").open()))
+    assert [t["member"] for t in table] == ["0", "1", "2", "3"]
+    summary = (out / "sweep.md").read_text()
+    assert "# Sweep: 4 members" in summary and "| peak_com |" in summary
+    assert (out / "sweep_heatmap.png").exists()
+    rerun = []                           # a finished sweep run again evaluates nothing
+    sweep.run(config, tmp_path / "out", data_dir=data_dir, echo=rerun.append)
+    assert "4 done before" in rerun[0] and not any("evaluated" in line for line in rerun)
+
+
+@pytest.mark.parametrize("key, values, message", [
+    ("highjump.method", '["aba"]', "sweep.highjump.method cannot be vmapped"),
+    ("ppo.hidden", "[[8]]", "sweep.ppo.hidden cannot be vmapped"),
+    ("physics.leg_length_scale", "[-1.0]", "must be a finite number > 0"),
+    ("physics.mass", "[1.0]", "sweep.physics.mass cannot be vmapped"),
+])
+def test_an_evaluation_sweep_refuses_what_it_cannot_vmap(tmp_path, jump_run, key, values,
+                                                          message):
+    config = tmp_path / "sweep.toml"
+    config.write_text(f'[sweep]\nevaluate = "{jump_run}"\n"{key}" = {values}\n')
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.").replace("(", r"\(")):
+        sweep.load(config)
+
+
+def _reach_sweep(tmp_path, iterations):
+    text = open("configs/reach.toml").read()
+    for old, new in (("iterations = 200", f"iterations = {iterations}"),
+                     ("envs = 64", "envs = 16"), ("hidden = [64, 64]", "hidden = [16]"),
+                     ("minibatch_size = 256", "minibatch_size = 120"),
+                     ("checkpoint_every = 50", "checkpoint_every = 1")):
+        assert old in text
+        text = text.replace(old, new)
+    config = tmp_path / "reach_sweep.toml"
+    config.write_text(text + "\n[sweep]\nrun.seed = [0, 1, 2]\n")
+    return config
+
+
+def test_a_killed_training_sweep_resumes_without_redoing_finished_members(tmp_path):
+    """SIGKILL after member 0's row and during member 1's training: run again, member 0 is not
+    trained again (its metrics file is untouched), member 1 goes on from its checkpoint, and
+    every member has one row."""
+    config = _reach_sweep(tmp_path, iterations=40)
+    out = tmp_path / "out"
+    env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "jax_cache"),
+           "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    command = [sys.executable, "-m", "agents.commands.cli", "sweep", str(config), "--out",
+               str(out)]
+    process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE)
+    member_1 = out / sweep.MEMBERS / "001" / "metrics.jsonl"
+    deadline = time.monotonic() + 300
+    while not (member_1.exists() and len(member_1.read_text().splitlines()) >= 3):
+        assert process.poll() is None, process.stderr.read().decode()[-2000:]
+        assert time.monotonic() < deadline, "member 1 did not train 3 iterations in 5 min"
+        time.sleep(0.1)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    rows = (out / sweep.ROWS).read_text().splitlines()
+    assert [json.loads(r)["member"] for r in rows] == [0]
+    member_0 = out / sweep.MEMBERS / "000" / "metrics.jsonl"
+    stamp = member_0.stat().st_mtime_ns, member_0.read_text()
+
+    resumed = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert "1 done before" in resumed.stdout
+    rows = [json.loads(r) for r in (out / sweep.ROWS).read_text().splitlines()]
+    assert sorted(r["member"] for r in rows) == [0, 1, 2]
+    assert (member_0.stat().st_mtime_ns, member_0.read_text()) == stamp
+    iterations = [json.loads(r)["iteration"] for r in member_1.read_text().splitlines()]
+    assert iterations == list(range(1, 41))           # none repeated, none missing
+    assert all(r["iteration"] == 40 for r in rows)
+
+
+def test_a_rerun_with_another_table_is_refused(tmp_path):
+    config = _reach_sweep(tmp_path, iterations=1)
+    out = tmp_path / "out"
+    sweep._claim(out, sweep.load(config))
+    config.write_text(config.read_text().replace("[0, 1, 2]", "[0, 1]"))
+    with pytest.raises(ConfigError, match="holds another sweep"):
+        sweep.run(config, out)
