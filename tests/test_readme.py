@@ -31,6 +31,9 @@ COMMAND_SMALLER = {
     "takeoff train configs/": SMALL_RUN,
     "takeoff train --resume": ["--set", "run.iterations=2"],
     "takeoff eval": ["--episodes", "2"],
+    "takeoff sweep configs/sweep_highjump_body.toml": [
+        "--set", "sweep.physics.leg_length_scale={linspace = [0.8, 1.2, 4]}"],
+    "takeoff sensitivity": ["--set", "sensitivity.seconds=0.2"],
     "python benchmarks/jump.py report": ["--episodes", "2"],
 }
 NOT_RUN = ("pip install", "TAKEOFF_DATA=")     # setting up, and the test suite itself
