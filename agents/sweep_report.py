@@ -1,7 +1,7 @@
 """What a person reads of a sweep (`agents.sweep`): its rows as `sweep.csv`, a markdown summary
 `sweep.md`, and plots — each headline outcome against each swept number (`sweep_<key>.png`)
-and, when exactly two numbers are swept, a heat map of the first headline outcome over the
-two (`sweep_heatmap.png`). The plots need matplotlib (the `render` extra); without it the
+and, when exactly two numbers are swept, heat maps of the first two headline outcomes over
+the two (`sweep_heatmap.png`). The plots need matplotlib (the `render` extra); without it the
 CSV and the summary are still written."""
 
 import csv
@@ -42,7 +42,7 @@ def write(out, keys, rows) -> list[str]:
         _plot_against(plt, render, rows, key, headline, out / name)
         written.append(name)
     if len(numeric) == 2 and headline:
-        _heat_map(plt, render, rows, numeric, headline[0], out / "sweep_heatmap.png")
+        _heat_map(plt, render, rows, numeric, headline[:2], out / "sweep_heatmap.png")
         written.append("sweep_heatmap.png")
     return written
 
@@ -133,24 +133,28 @@ def _plot_against(plt, render, rows, key, headline, path):
     render.save_figure(fig, path, title=f"sweep: outcomes against {key}", dpi=110)
 
 
-def _heat_map(plt, render, rows, keys, name, path):
-    """The mean of `name` over the members at each pair of values of the two `keys`."""
+def _heat_map(plt, render, rows, keys, names, path):
+    """For each outcome of `names`, its mean over the members at each pair of values of the
+    two `keys`."""
     a, b = (np.array([row[k] for row in rows], float) for k in keys)
-    y = np.array([_number(row.get(name)) for row in rows], float)
     rows_a, cols_b = np.unique(a), np.unique(b)
-    grid = np.full((len(rows_a), len(cols_b)), np.nan)
-    for i, va in enumerate(rows_a):
-        for j, vb in enumerate(cols_b):
-            cell = y[(a == va) & (b == vb)]
-            if np.isfinite(cell).any():
-                grid[i, j] = np.nanmean(cell)
-    fig, ax = plt.subplots(figsize=(5.5, 4.2))
-    image = ax.imshow(grid, origin="lower", aspect="auto", interpolation="nearest",
-                      extent=(-0.5, len(cols_b) - 0.5, -0.5, len(rows_a) - 0.5))
-    ax.set_xticks(range(len(cols_b)), [f"{v:.3g}" for v in cols_b], rotation=45, fontsize=7)
-    step = max(1, len(rows_a) // 12)
-    ax.set_yticks(range(0, len(rows_a), step), [f"{v:.3g}" for v in rows_a[::step]], fontsize=7)
-    ax.set_xlabel(keys[1])
-    ax.set_ylabel(keys[0])
-    fig.colorbar(image, ax=ax, label=name)
-    render.save_figure(fig, path, title=f"sweep: {name}", dpi=110)
+    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 4.2), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        y = np.array([_number(row.get(name)) for row in rows], float)
+        grid = np.full((len(rows_a), len(cols_b)), np.nan)
+        for i, va in enumerate(rows_a):
+            for j, vb in enumerate(cols_b):
+                cell = y[(a == va) & (b == vb)]
+                if np.isfinite(cell).any():
+                    grid[i, j] = np.nanmean(cell)
+        image = ax.imshow(grid, origin="lower", aspect="auto", interpolation="nearest",
+                          extent=(-0.5, len(cols_b) - 0.5, -0.5, len(rows_a) - 0.5))
+        ax.set_xticks(range(len(cols_b)), [f"{v:.3g}" for v in cols_b], rotation=45,
+                      fontsize=7)
+        step = max(1, len(rows_a) // 12)
+        ax.set_yticks(range(0, len(rows_a), step), [f"{v:.3g}" for v in rows_a[::step]],
+                      fontsize=7)
+        ax.set_xlabel(keys[1])
+        ax.set_ylabel(keys[0])
+        fig.colorbar(image, ax=ax, label=name)
+    render.save_figure(fig, path, title="sweep: " + ", ".join(names), dpi=110)

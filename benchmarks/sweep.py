@@ -2,13 +2,19 @@
 
     python benchmarks/sweep.py RUN_DIR [--members 256] [--separate 4]
 
-RUN_DIR is a trained high-jump run. The sweep: every member (a leg-length × gravity pair of
-`[physics]` factors, as configs/sweep_highjump_body.toml) evaluated for one deterministic
-episode in one call, `agents.sweep`'s way, compile included. Separately: each member its own
-evaluation (`train_commands.run_episodes` with the member's overrides, what `takeoff eval` of
-that member's config does, compile included: a new config is a new program), `--separate` of
-them timed and the median scaled to all members. Wall times from `time.perf_counter`; the two
-agree member by member (printed). Writes benchmarks/results/sweep.json.
+RUN_DIR is a trained high-jump run. Three ways to evaluate the same members (leg-length ×
+gravity pairs of `[physics]` factors, as configs/sweep_highjump_body.toml), one deterministic
+episode each, compile included in all three, in this order:
+
+- the sweep: every member in one call, `agents.sweep`'s way;
+- one program, called per member: one environment's evaluation compiled once, then called with
+  each member's parameters in a Python loop (what a careful user writes by hand), every member;
+- separate runs: each member's own config evaluated (`train_commands.run_episodes` with the
+  member's overrides, what `takeoff eval` of that member's config does: a new config is a new
+  program, so each compiles), `--separate` of them timed, their median scaled to all members.
+
+Wall times from `time.perf_counter`; the largest difference of the apex between the ways is
+printed. Writes benchmarks/results/sweep.json.
 """
 
 import argparse
@@ -46,6 +52,17 @@ def main():
         overrides=["physics.length_scale=1.0"],
         vary=lambda params: sweep.member_params(plan, columns, params))
     sweep_seconds = time.perf_counter() - started
+    started = time.perf_counter()
+    looped = []
+    for i in range(len(members)):
+        one = {k: v[i:i + 1] for k, v in columns.items()}
+        alone = train_commands.run_episodes(
+            args.run_dir, 1, args.data_dir, echo=quiet, overrides=["physics.length_scale=1.0"],
+            vary=lambda params: sweep.member_params(plan, one, params))
+        looped.append(float(alone.outcomes["episode/peak_com"][0]))
+    loop_seconds = time.perf_counter() - started
+    loop_difference = float(np.max(np.abs(np.asarray(looped)
+                                          - together.outcomes["episode/peak_com"])))
     picks = np.linspace(0, len(members) - 1, args.separate).round().astype(int)
     separate, worst = [], 0.0
     for i in picks:
@@ -58,6 +75,9 @@ def main():
                                - float(together.outcomes["episode/peak_com"][i])))
     per_member = statistics.median(separate)
     result = {"members": len(members), "sweep_seconds": sweep_seconds,
+              "one_program_loop_seconds": loop_seconds,
+              "loop_over_sweep": loop_seconds / sweep_seconds,
+              "loop_largest_peak_com_difference": loop_difference,
               "separate_seconds_each": separate, "separate_median": per_member,
               "separate_total_estimate": per_member * len(members),
               "speedup": per_member * len(members) / sweep_seconds,

@@ -16,8 +16,9 @@ from jaxsim.model import Model
 
 def scaled_body(model: Model, length=None, mass=None, pd_gain=None, torque_limit=None) -> Model:
     """`model` with per-link `length` and `mass` factors ((n_links,) arrays) and per-DoF
-    `pd_gain` (kp and kd alike) and `torque_limit` factors ((nv,) arrays); None keeps a field.
-    Factors of 1 give the model back exactly."""
+    `pd_gain` (kp and kd alike) and `torque_limit` factors ((nv,) arrays; an unlimited joint,
+    torque limit inf, stays unlimited); None keeps a field. Factors of 1 give the model back
+    exactly."""
     changes = {}
     if length is not None:
         length = jnp.asarray(length, model.mass.dtype)
@@ -36,6 +37,8 @@ def scaled_body(model: Model, length=None, mass=None, pd_gain=None, torque_limit
         pd_gain = jnp.asarray(pd_gain, model.kp.dtype)
         changes.update(kp=model.kp * pd_gain, kd=model.kd * pd_gain)
     if torque_limit is not None:
-        changes.update(torque_limit=model.torque_limit
-                       * jnp.asarray(torque_limit, model.torque_limit.dtype))
+        limit = model.torque_limit                     # (inf: no limit, left so, and with a
+        finite = jnp.isfinite(limit)                   # zero gradient rather than inf · 0)
+        scaled = jnp.where(finite, limit, 0.0) * jnp.asarray(torque_limit, limit.dtype)
+        changes.update(torque_limit=jnp.where(finite, scaled, limit))
     return model.replace(**changes)

@@ -163,8 +163,10 @@ def _chart(result, settings, path):
     ax.barh([r.name for r in rows], values,
             color=["tab:blue" if r.agrees else "tab:red" for r in rows])
     ax.axvline(0, color="k", lw=0.8)
-    ax.set_xlabel(f"elasticity: ∂ log {settings.outcome} / ∂ log parameter "
-                  "(red: gradient disagrees with finite differences)")
+    ax.set_xlabel(f"elasticity: ∂ log {settings.outcome} / ∂ log parameter")
     ax.grid(axis="x", alpha=0.3)
-    render.save_figure(fig, path, title=f"sensitivity of {settings.outcome}", dpi=110)
+    flagged = sum(not r.agrees for r in rows)
+    render.save_figure(fig, path, dpi=110, title=f"sensitivity of {settings.outcome}"
+                       + (f" ({flagged} in red: gradient ≠ finite difference)" if flagged
+                          else " (every gradient agrees with its finite difference)"))
     return path

@@ -31,11 +31,10 @@ from agents.rl import trainer as trainer_lib
 from agents.datadir import data_dir_from
 from agents.discovery import stage2
 from agents.rl.ppo import PPOSettings
-from agents.rl.rollout import make_rollout, start_runner
+from agents.rl.rollout import start_runner
 from agents.rl.trainer import RunSettings
 from agents.tasks import physics as physics_lib
 from agents.tasks import registry
-from jaxsim import xla_options
 from jaxsim.atomic import check_writable, write_text_atomic
 
 CONFIG = "config.json"
@@ -387,10 +386,7 @@ def run_episodes(run_dir, episodes: int = 8, data_dir=None, difficulty=None, ech
     params = trainer.env_params_for(curriculum, episodes)
     if vary is not None:
         params = vary(params)
-    rollout = jax.jit(make_rollout(env, trainer.policy_apply, trainer.value_apply,
-                                   env.episode_steps, deterministic=True, keep_physics=True,
-                                   params_axis=0),
-                      compiler_options=xla_options.simulation_options())
+    rollout = trainer.evaluation_rollout(curriculum)
     start_key, rollout_key = jax.random.split(jax.random.PRNGKey(config.run.seed + 1))
     runner = start_runner(env, params, start_key, episodes, params_axis=0)
     p = state.ppo

@@ -10,6 +10,7 @@ same step, after the value of its last observation has been taken for bootstrapp
 """
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -48,13 +49,18 @@ jax.tree_util.register_dataclass(Runner, data_fields=["envs", "episode_return"],
 
 def start_runner(env: Env, params, key, n_envs: int, params_axis=None) -> Runner:
     """`n_envs` environments, freshly reset; `params` shared (`params_axis` None) or one set per
-    environment (0). One compiled program: the resets run op by op took most of a short
-    evaluation's time."""
+    environment (0). One compiled program (the resets run op by op took most of a short
+    evaluation's time), compiled once per environment object, count and layout."""
+    envs = _reset_program(env, n_envs, params_axis)(params, key)
+    return Runner(envs, jnp.zeros(n_envs, envs.reward.dtype))
+
+
+@functools.lru_cache(maxsize=32)
+def _reset_program(env: Env, n_envs: int, params_axis):
     @jax.jit
     def reset_all(params, key):
         return jax.vmap(env.reset, in_axes=(params_axis, 0))(params, jax.random.split(key, n_envs))
-    envs = reset_all(params, key)
-    return Runner(envs, jnp.zeros(n_envs, envs.reward.dtype))
+    return reset_all
 
 
 def _select(done, fresh, stepped):

@@ -140,6 +140,8 @@ class Trainer:
         self.policy_apply, self.value_apply = self.ppo.policy_apply, self.ppo.value_apply
         self.rollout = self._rollout_of(env)
         self._compiled = {}                                  # rollouts, by static key
+        self._evaluations = {}                   # deterministic episode rollouts, by static key
+        self._variants = {}                      # the environment's variants, by static key
         self.state_sharding, self._collected_sharding = _shardings(layout)
         learn_state, learn_collected = _shardings(learn)
         self._learn_inputs = (learn_state, learn_collected)
@@ -183,9 +185,14 @@ class Trainer:
         return self.curriculum.static_key(curriculum_lib.host(curriculum_state))
 
     def env_for(self, curriculum_state):
-        """The environment the curriculum's state is trained in (its static variant)."""
+        """The environment the curriculum's state is trained in (its static variant, made once
+        per key, so what is compiled for it is found again)."""
         key = self._static_key(curriculum_state)
-        return self.env if key is None else self.env.variant(key)
+        if key is None:
+            return self.env
+        if key not in self._variants:
+            self._variants[key] = self.env.variant(key)
+        return self._variants[key]
 
     def init(self, curriculum=None) -> TrainState:
         """A fresh state from the run's seed; its environments start under the curriculum's
@@ -198,6 +205,22 @@ class Trainer:
         norm = RunningNorm.zeros(self.env.observation_size, runner.envs.obs.dtype)
         return TrainState(self.ppo.init(ppo_key, runner.envs.obs.dtype), norm, runner, key,
                           curriculum)
+
+    def evaluation_rollout(self, curriculum_state):
+        """The deterministic rollout of whole episodes (`episode_steps` control steps, the
+        physics kept) under the curriculum's state, for evaluations: jitted once per static
+        key of the curriculum and shared by every copy of this trainer (`with_run_settings`),
+        so evaluations of one config in one process compile once per number of
+        environments."""
+        key = self._static_key(curriculum_state)
+        if key not in self._evaluations:
+            env = self.env_for(curriculum_state)
+            self._evaluations[key] = jax.jit(
+                rollout_lib.make_rollout(env, self.policy_apply, self.value_apply,
+                                         env.episode_steps, deterministic=True,
+                                         keep_physics=True, params_axis=0),
+                compiler_options=xla_options.simulation_options())
+        return self._evaluations[key]
 
     def compiles_next(self, state: TrainState) -> str:
         """What the next `iteration(state)` compiles first ("" when nothing): the first
