@@ -12,10 +12,12 @@ Two kinds, by what the table's `evaluate` says:
   key (a network size, the solver) cannot change under a trained policy in one program and is
   refused, naming it.
 - **A training sweep** (a training config with a `[sweep]` table): each member is a training
-  run in `DIR/members/NNN` from the config with the member's values, run through the executor
-  (`workers` local processes, each pinned to its cores). A killed sweep resumes: members with a
-  row are not run again, and a member's training goes on from its last checkpoint
-  (`train_commands.train_or_resume`).
+  run in `DIR/members/NNN` from the config with the member's values. When every swept key is
+  `run.seed` or a task parameter (and `vmap` is not false), all the members train in one
+  compiled program (`agents.rl.members`), checkpointed together in `DIR/members/`; otherwise
+  each is its own run through the executor (`workers` local processes, each pinned to its
+  cores). A killed sweep resumes: members with a row are not run again, and a training goes on
+  from its last checkpoint (`train_commands.train_or_resume`; the group's own checkpoint).
 
 A sweep directory holds `sweep.json` (the members; a rerun must describe the same sweep),
 `base.json` (a training sweep's config without its table), `sweep.jsonl` (a row per finished
@@ -50,12 +52,14 @@ class Sweep:
     episodes: int = 1           # per member (evaluation)
     difficulty: float | None = None   # the bar / obstacle to evaluate at (default: the run's)
     workers: int = 1            # training members at once
+    vmap: bool = True           # train the members in one program when they can be
     base: dict | None = None    # a training sweep's config, its [sweep] table taken out
 
     def plan(self) -> dict:
+        """What makes a sweep this sweep (`sweep.json`): a rerun must agree on all of it."""
         return {"source": self.source, "evaluate": self.evaluate, "episodes": self.episodes,
-                "difficulty": self.difficulty, "keys": list(self.keys),
-                "members": self.members}
+                "difficulty": self.difficulty, "vmap": self.vmap, "base": self.base,
+                "keys": list(self.keys), "members": self.members}
 
 
 def load(path, overrides=()) -> Sweep:
@@ -69,7 +73,8 @@ def load(path, overrides=()) -> Sweep:
     members = sweep_spec.expand(table, path)
     keys = tuple(dict.fromkeys(k for member in members for k in member))
     settings = dict(evaluate=table.get("evaluate", ""), episodes=table.get("episodes", 1),
-                    difficulty=table.get("difficulty"), workers=table.get("workers", 1))
+                    difficulty=table.get("difficulty"), workers=table.get("workers", 1),
+                    vmap=table.get("vmap", True))
     _check_settings(settings, path)
     sweep = Sweep(str(path), members, keys, base=None if settings["evaluate"] else data,
                   **settings)
@@ -86,6 +91,9 @@ def _check_settings(settings, path):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise config_io.ConfigError(f"{path}: sweep.{name} must be a whole number ≥ 1; "
                                         f"got {value!r}")
+    if not isinstance(settings["vmap"], bool):
+        raise config_io.ConfigError(f"{path}: sweep.vmap must be true or false; got "
+                                    f"{settings['vmap']!r}")
     difficulty = settings["difficulty"]
     if difficulty is not None and (isinstance(difficulty, bool)
                                    or not isinstance(difficulty, (int, float))):
@@ -239,9 +247,63 @@ def _evaluate(sweep: Sweep, out: Path, data_dir, echo):
                                        {k: v[index] for k, v in means.items()}))
 
 
+def _in_one_program(sweep: Sweep) -> bool:
+    """Whether the training sweep's members can train in one program: every swept key the seed
+    or a task parameter, on one device."""
+    from agents.commands import train_commands
+    config = train_commands.build_config(_with_physics(sweep), sweep.source)
+    allowed = {"run.seed", *vmappable_keys(config)}
+    return sweep.vmap and config.run.devices == 1 and all(k in allowed for k in sweep.keys)
+
+
+def _with_physics(sweep: Sweep) -> dict:
+    """The training sweep's base config, with a `[physics]` section (its factors at 1) when a
+    physics key is swept and it has none."""
+    data = json.loads(json.dumps(sweep.base))
+    if any(k.startswith("physics.") for k in sweep.keys):
+        data.setdefault("physics", {})
+    return data
+
+
+def _train_together(sweep: Sweep, out: Path, todo, data_dir, echo):
+    """Every member in one program (`agents.rl.members`); rows for those of `todo`."""
+    import jax
+    import jax.numpy as jnp
+
+    from agents.commands import train_commands
+    from agents.rl import members as members_lib
+
+    data = _with_physics(sweep)
+    config = train_commands.build_config(data, sweep.source)
+    trainer = train_commands.make_trainer(config, data_dir)
+    count = len(sweep.members)
+    seeds = [member.get("run.seed", config.run.seed) for member in sweep.members]
+    columns = {k: np.asarray([m[k] for m in sweep.members], float)
+               for k in sweep.keys if k != "run.seed"}
+    env_params = None
+    if columns:
+        stacked = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (count, *jnp.shape(x))),
+                                         trainer.env_params)
+        env_params = member_params(sweep, columns, stacked)
+    configs = [train_commands.build_config(_overridden(data, member, sweep.source),
+                                           sweep.source).sections() for member in sweep.members]
+    directories = [out / MEMBERS / f"{i:03d}" for i in range(count)]
+    echo(f"training {count} members in one program: {config.run.envs} environments × "
+         f"{config.run.steps_per_iteration} steps each, {config.run.iterations} iterations")
+    members_lib.train(members_lib.MemberTraining(trainer, seeds, env_params),
+                      json.loads(json.dumps(configs)), directories, out / MEMBERS, echo)
+    for index in todo:
+        runlog.append(out / ROWS, _row(index, sweep.members[index],
+                                       last_metrics(directories[index])), sync=True)
+
+
 def _train(sweep: Sweep, out: Path, todo, data_dir, echo):
-    """The members not done, each a training run, `workers` at once through the executor."""
+    """The members not done: in one program when they can be, else each a training run,
+    `workers` at once through the executor."""
     from jaxsim import executor as executor_lib
+
+    if _in_one_program(sweep):
+        return _train_together(sweep, out, todo, data_dir, echo)
 
     jobs = [(str(out / BASE), sweep_spec.overrides(sweep.members[i]),
              str(out / MEMBERS / f"{i:03d}"), None if data_dir is None else str(data_dir))
@@ -262,10 +324,15 @@ SHOWN = ("return", "episode_length", "curriculum/difficulty")
 def train_member(config_path, overrides, run_dir, data_dir) -> dict:
     """Train (or resume) one member; its outcomes are its last iteration's metrics (numbers)."""
     from agents.commands import train_commands
-    from agents.rl import trainer as trainer_lib
 
     train_commands.train_or_resume(config_path, run_dir, overrides, data_dir,
                                    echo=lambda *_: None)
+    return last_metrics(run_dir)
+
+
+def last_metrics(run_dir) -> dict:
+    """The numbers of a run's last metrics record."""
+    from agents.rl import trainer as trainer_lib
     records = trainer_lib.read_metrics(run_dir)
     last = records[-1] if records else {}
     return {k: v for k, v in last.items() if isinstance(v, (int, float))

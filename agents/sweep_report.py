@@ -37,7 +37,9 @@ def write(out, keys, rows) -> list[str]:
     except ImportError:
         return written
     numeric = [k for k in keys if all(_is_number(row.get(k)) for row in rows)]
-    for key in numeric:
+    headline = [name for name in headline                  # (nothing to draw of the others)
+                if any(np.isfinite(_number(row.get(name))) for row in rows)]
+    for key in numeric if headline else ():
         name = f"sweep_{key.replace('.', '_')}.png"
         _plot_against(plt, render, rows, key, headline, out / name)
         written.append(name)

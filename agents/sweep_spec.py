@@ -42,7 +42,7 @@ from agents.config import ConfigError
 DISTRIBUTIONS = ("uniform", "log_uniform", "choice")
 RANGES = ("linspace", "logspace")
 # The table's own keys, not config keys: the draws', and how the sweep runs (`agents.sweep`).
-SETTINGS = ("samples", "seed", "evaluate", "episodes", "difficulty", "workers")
+SETTINGS = ("samples", "seed", "evaluate", "episodes", "difficulty", "workers", "vmap")
 MAX_MEMBERS = 100_000
 
 

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 
+import jax
 import numpy as np
 import pytest
 
@@ -84,7 +85,7 @@ def test_an_evaluation_sweep_refuses_what_it_cannot_vmap(tmp_path, jump_run, key
         sweep.load(config)
 
 
-def _reach_sweep(tmp_path, iterations):
+def _reach_sweep(tmp_path, iterations, table="run.seed = [0, 1, 2]\nvmap = false\n"):
     text = open("configs/reach.toml").read()
     for old, new in (("iterations = 200", f"iterations = {iterations}"),
                      ("envs = 64", "envs = 16"), ("hidden = [64, 64]", "hidden = [16]"),
@@ -93,14 +94,14 @@ def _reach_sweep(tmp_path, iterations):
         assert old in text
         text = text.replace(old, new)
     config = tmp_path / "reach_sweep.toml"
-    config.write_text(text + "\n[sweep]\nrun.seed = [0, 1, 2]\n")
+    config.write_text(text + "\n[sweep]\n" + table)
     return config
 
 
 def test_a_killed_training_sweep_resumes_without_redoing_finished_members(tmp_path):
-    """SIGKILL after member 0's row and during member 1's training: run again, member 0 is not
-    trained again (its metrics file is untouched), member 1 goes on from its checkpoint, and
-    every member has one row."""
+    """Members as separate runs (`vmap = false`), SIGKILL after member 0's row and during
+    member 1's training: run again, member 0 is not trained again (its metrics file is
+    untouched), member 1 goes on from its checkpoint, and every member has one row."""
     config = _reach_sweep(tmp_path, iterations=40)
     out = tmp_path / "out"
     env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "jax_cache"),
@@ -140,3 +141,38 @@ def test_a_rerun_with_another_table_is_refused(tmp_path):
     config.write_text(config.read_text().replace("[0, 1, 2]", "[0, 1]"))
     with pytest.raises(ConfigError, match="holds another sweep"):
         sweep.run(config, out)
+
+
+def test_seeds_trained_in_one_program_equal_the_trainings_run_alone(tmp_path):
+    """Four seeds of the reach task as one vmapped training: each member's policy and metrics
+    are those of `takeoff train` with its seed (float32 programs: to 1e-5), and each member
+    directory is a run `takeoff eval` reads."""
+    from agents.rl import trainer as trainer_lib
+
+    config = _reach_sweep(tmp_path, iterations=3, table="run.seed = [0, 1, 2, 3]\n")
+    out = tmp_path / "out"
+    lines = []
+    sweep.run(config, out, echo=lines.append)
+    assert any("training 4 members in one program" in line for line in lines), lines
+    rows = [json.loads(r) for r in (out / sweep.ROWS).read_text().splitlines()]
+    assert [r["member"] for r in rows] == [0, 1, 2, 3]
+    returns = []
+    for seed in (0, 3):
+        alone = tmp_path / f"alone_{seed}"
+        train_commands.train(out / sweep.BASE, alone, [f"run.seed={seed}"],
+                             echo=lambda *_: None)
+        member = out / sweep.MEMBERS / f"{seed:03d}"
+        trainer = train_commands.make_trainer(train_commands.load_run_config(member))
+        states = [trainer_lib.load_checkpoint(trainer.init(), d, echo=lambda *_: None)
+                  for d in (alone, member)]
+        for a, b in zip(*(jax.tree_util.tree_leaves(s.ppo.policy_params) for s in states)):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
+        by_alone = trainer_lib.read_metrics(alone)[-1]
+        by_member = trainer_lib.read_metrics(member)[-1]
+        for name in ("return", "policy_loss", "value_loss", "episode_length"):
+            assert by_member[name] == pytest.approx(by_alone[name], rel=1e-4, abs=1e-6), name
+        returns.append(by_member["return"])
+    assert returns[0] != returns[1]                     # the seeds differ
+    summary = train_commands.evaluate(out / sweep.MEMBERS / "001", episodes=2,
+                                      echo=lambda *_: None)[0]
+    assert np.isfinite(summary["return"])

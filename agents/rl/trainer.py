@@ -171,11 +171,13 @@ class Trainer:
         s = self.ppo_settings
         return sigma_at(samples, s.sigma_start, s.sigma_end, s.sigma_horizon)
 
-    def env_params_for(self, curriculum_state, envs: int | None = None):
+    def env_params_for(self, curriculum_state, envs: int | None = None, base=None):
         """The task parameters of each environment (a leading axis of `envs`, default the run's)
-        under the curriculum's state."""
+        under the curriculum's state, from the trainer's (or `base`, one training's of
+        several in one program: `agents.rl.members`)."""
         envs = self.run_settings.envs if envs is None else envs
-        params = self.curriculum.params(self.env_params, curriculum_state)
+        params = self.curriculum.params(self.env_params if base is None else base,
+                                        curriculum_state)
         if self.params_per_env:
             return params
         return jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (envs, *jnp.shape(x))),
@@ -194,14 +196,16 @@ class Trainer:
             self._variants[key] = self.env.variant(key)
         return self._variants[key]
 
-    def init(self, curriculum=None) -> TrainState:
-        """A fresh state from the run's seed; its environments start under the curriculum's
-        state `curriculum` (default: the curriculum's start)."""
-        key = jax.random.PRNGKey(self.run_settings.seed)
+    def init(self, curriculum=None, seed=None, env_params=None) -> TrainState:
+        """A fresh state from the run's seed (or `seed`, which may be traced); its environments
+        start under the curriculum's state `curriculum` (default: the curriculum's start) and
+        the trainer's task parameters (or `env_params`)."""
+        key = jax.random.PRNGKey(self.run_settings.seed if seed is None else seed)
         ppo_key, env_key, key = jax.random.split(key, 3)
         curriculum = self.curriculum.init() if curriculum is None else curriculum
-        runner = rollout_lib.start_runner(self.env, self.env_params_for(curriculum), env_key,
-                                          self.run_settings.envs, params_axis=0)
+        runner = rollout_lib.start_runner(self.env,
+                                          self.env_params_for(curriculum, base=env_params),
+                                          env_key, self.run_settings.envs, params_axis=0)
         norm = RunningNorm.zeros(self.env.observation_size, runner.envs.obs.dtype)
         return TrainState(self.ppo.init(ppo_key, runner.envs.obs.dtype), norm, runner, key,
                           curriculum)
@@ -292,12 +296,13 @@ class Trainer:
         checkpoint holds; in a multi-process run every process must call it)."""
         return self.layout.host(state)
 
-    def _collect(self, rollout, state: TrainState):
-        """The rollout of an iteration, from the state's key."""
+    def _collect(self, rollout, state: TrainState, env_params=None):
+        """The rollout of an iteration, from the state's key (under the trainer's task
+        parameters, or `env_params`)."""
         key, rollout_key, update_key = jax.random.split(state.key, 3)
         p = state.ppo
         runner, batch, raw_obs, episodes, env_metrics, _ = rollout(
-            self.env_params_for(state.curriculum), state.runner, p.policy_params,
+            self.env_params_for(state.curriculum, base=env_params), state.runner, p.policy_params,
             p.value_params, state.norm, self.sigma(p.samples), rollout_key)
         return runner, batch, raw_obs, episodes, env_metrics, key, update_key
 
