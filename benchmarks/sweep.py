@@ -1,6 +1,8 @@
-"""A vmapped evaluation sweep against separate evaluations of the same members (issue 21).
+"""Sweeps (issue 21): a vmapped evaluation sweep against separate evaluations of the same
+members, and trainings of several seeds in one program against the same trainings in a row.
 
-    python benchmarks/sweep.py RUN_DIR [--members 256] [--separate 4]
+    python benchmarks/sweep.py evaluate RUN_DIR [--members 256] [--separate 4]
+    python benchmarks/sweep.py train [--config configs/reach.toml] [--seeds 4]
 
 RUN_DIR is a trained high-jump run. Three ways to evaluate the same members (leg-length ×
 gravity pairs of `[physics]` factors, as configs/sweep_highjump_body.toml), one deterministic
@@ -15,11 +17,17 @@ episode each, compile included in all three, in this order:
 
 Wall times from `time.perf_counter`; the largest difference of the apex between the ways is
 printed. Writes benchmarks/results/sweep.json.
+
+`train`: the config's training for `--seeds` seeds as `takeoff sweep` runs it, once in one
+program (the members vmapped) and once member after member in this process (`vmap = false`,
+each seed's config a new program), compile included in both; each member's final return
+printed. Writes benchmarks/results/sweep_train.json.
 """
 
 import argparse
 import json
 import statistics
+import tempfile
 import time
 from pathlib import Path
 
@@ -33,11 +41,44 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir")
-    parser.add_argument("--members", type=int, default=256)
-    parser.add_argument("--separate", type=int, default=4)
-    parser.add_argument("--data-dir")
+    sub = parser.add_subparsers(dest="what", required=True)
+    p = sub.add_parser("evaluate")
+    p.add_argument("run_dir")
+    p.add_argument("--members", type=int, default=256)
+    p.add_argument("--separate", type=int, default=4)
+    p.add_argument("--data-dir")
+    p.set_defaults(run=evaluate)
+    p = sub.add_parser("train")
+    p.add_argument("--config", default="configs/reach.toml")
+    p.add_argument("--seeds", type=int, default=4)
+    p.add_argument("--data-dir")
+    p.set_defaults(run=train)
     args = parser.parse_args()
+    args.run(args)
+
+
+def train(args):
+    table = f"\n[sweep]\nrun.seed = {list(range(args.seeds))}\n"
+    text = Path(args.config).read_text()
+    result = {"config": args.config, "seeds": args.seeds}
+    with tempfile.TemporaryDirectory() as folder:
+        for way, extra in (("one_program", ""), ("in_a_row", "vmap = false\n")):
+            config = Path(folder) / f"{way}.toml"
+            config.write_text(text + table + extra)
+            started = time.perf_counter()
+            out = sweep.run(config, Path(folder) / way, data_dir=args.data_dir,
+                            echo=lambda *_: None)
+            seconds = time.perf_counter() - started
+            rows = sorted(sweep._rows(out), key=lambda r: r["member"])
+            result[way] = {"seconds": seconds, "returns": [r["return"] for r in rows]}
+            print(f"{way}: {seconds:.1f} s, returns {[round(r['return'], 4) for r in rows]}")
+    result["speedup"] = result["in_a_row"]["seconds"] / result["one_program"]["seconds"]
+    print(json.dumps(result, indent=1))
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "sweep_train.json").write_text(json.dumps(result, indent=1) + "\n")
+
+
+def evaluate(args):
     gravities = [0.5, 0.75, 1.0, 1.25]
     legs = np.linspace(0.8, 1.2, args.members // len(gravities))
     members = [{"physics.leg_length_scale": float(leg), "physics.gravity_scale": g}
