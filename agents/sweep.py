@@ -13,8 +13,9 @@ Two kinds, by what the table's `evaluate` says:
   refused, naming it.
 - **A training sweep** (a training config with a `[sweep]` table): each member is a training
   run in `DIR/members/NNN` from the config with the member's values. When every swept key is
-  `run.seed` or a task parameter (and `vmap` is not false), all the members train in one
-  compiled program (`agents.rl.members`), checkpointed together in `DIR/members/`; otherwise
+  `run.seed`, a task parameter or a PPO hyperparameter (`ppo.policy_lr`, `value_lr`, `clip`,
+  `sigma_start`, `sigma_end`, `sigma_horizon`) and `vmap` is not false, all the members train
+  in one compiled program (`agents.rl.members`), checkpointed together in `DIR/members/`; else
   each is its own run through the executor (`workers` local processes, each pinned to its
   cores). A killed sweep resumes: members with a row are not run again, and a training goes on
   from its last checkpoint (`train_commands.train_or_resume`; the group's own checkpoint).
@@ -252,8 +253,13 @@ def _in_one_program(sweep: Sweep) -> bool:
     or a task parameter, on one device."""
     from agents.commands import train_commands
     config = train_commands.build_config(_with_physics(sweep), sweep.source)
-    allowed = {"run.seed", *vmappable_keys(config)}
+    allowed = {"run.seed", *vmappable_keys(config), *_hyperparameter_keys()}
     return sweep.vmap and config.run.devices == 1 and all(k in allowed for k in sweep.keys)
+
+
+def _hyperparameter_keys():
+    from agents.rl.ppo import HYPERPARAMETERS
+    return tuple(f"ppo.{name}" for name in HYPERPARAMETERS)
 
 
 def _with_physics(sweep: Sweep) -> dict:
@@ -278,8 +284,14 @@ def _train_together(sweep: Sweep, out: Path, todo, data_dir, echo):
     trainer = train_commands.make_trainer(config, data_dir)
     count = len(sweep.members)
     seeds = [member.get("run.seed", config.run.seed) for member in sweep.members]
+    hyper_keys = _hyperparameter_keys()
     columns = {k: np.asarray([m[k] for m in sweep.members], float)
-               for k in sweep.keys if k != "run.seed"}
+               for k in sweep.keys if k != "run.seed" and k not in hyper_keys}
+    hyper = None
+    if any(k in hyper_keys for k in sweep.keys):
+        hyper = {k.removeprefix("ppo."): jnp.asarray(
+            [m.get(k, getattr(config.ppo, k.removeprefix("ppo."))) for m in sweep.members],
+            jnp.float32) for k in hyper_keys}
     env_params = None
     if columns:
         stacked = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (count, *jnp.shape(x))),
@@ -290,7 +302,7 @@ def _train_together(sweep: Sweep, out: Path, todo, data_dir, echo):
     directories = [out / MEMBERS / f"{i:03d}" for i in range(count)]
     echo(f"training {count} members in one program: {config.run.envs} environments × "
          f"{config.run.steps_per_iteration} steps each, {config.run.iterations} iterations")
-    members_lib.train(members_lib.MemberTraining(trainer, seeds, env_params),
+    members_lib.train(members_lib.MemberTraining(trainer, seeds, env_params, hyper),
                       json.loads(json.dumps(configs)), directories, out / MEMBERS, echo)
     for index in todo:
         runlog.append(out / ROWS, _row(index, sweep.members[index],

@@ -15,7 +15,7 @@ import jax
 import numpy as np
 import pytest
 
-from agents import sweep
+from agents import sweep, sweep_spec
 from agents.commands import train_commands
 from agents.config import ConfigError
 from conftest import tiny_highjump_training
@@ -144,24 +144,26 @@ def test_a_rerun_with_another_table_is_refused(tmp_path):
 
 
 def test_seeds_trained_in_one_program_equal_the_trainings_run_alone(tmp_path):
-    """Four seeds of the reach task as one vmapped training: each member's policy and metrics
-    are those of `takeoff train` with its seed (float32 programs: to 1e-5), and each member
-    directory is a run `takeoff eval` reads."""
+    """Two seeds × two clips × two policy learning rates of the reach task as one vmapped
+    training: each member's policy and metrics are those of `takeoff train` with its values
+    (float32 programs: to 1e-5), and each member directory is a run `takeoff eval` reads."""
     from agents.rl import trainer as trainer_lib
 
-    config = _reach_sweep(tmp_path, iterations=3, table="run.seed = [0, 1, 2, 3]\n")
+    config = _reach_sweep(tmp_path, iterations=3, table=(
+        "run.seed = [0, 3]\nppo.clip = [0.2, 0.05]\nppo.policy_lr = [3e-4, 1e-3]\n"))
     out = tmp_path / "out"
     lines = []
     sweep.run(config, out, echo=lines.append)
-    assert any("training 4 members in one program" in line for line in lines), lines
+    assert any("training 8 members in one program" in line for line in lines), lines
     rows = [json.loads(r) for r in (out / sweep.ROWS).read_text().splitlines()]
-    assert [r["member"] for r in rows] == [0, 1, 2, 3]
+    assert [r["member"] for r in rows] == list(range(8))
     returns = []
-    for seed in (0, 3):
-        alone = tmp_path / f"alone_{seed}"
-        train_commands.train(out / sweep.BASE, alone, [f"run.seed={seed}"],
-                             echo=lambda *_: None)
-        member = out / sweep.MEMBERS / f"{seed:03d}"
+    for index in (0, 7):                  # (seed 0, clip 0.2, lr 3e-4), (3, 0.05, 1e-3)
+        alone = tmp_path / f"alone_{index}"
+        train_commands.train(out / sweep.BASE, alone, sweep_spec.overrides(
+            {k: rows[index][k] for k in ("run.seed", "ppo.clip", "ppo.policy_lr")}),
+            echo=lambda *_: None)
+        member = out / sweep.MEMBERS / f"{index:03d}"
         trainer = train_commands.make_trainer(train_commands.load_run_config(member))
         states = [trainer_lib.load_checkpoint(trainer.init(), d, echo=lambda *_: None)
                   for d in (alone, member)]
@@ -172,7 +174,7 @@ def test_seeds_trained_in_one_program_equal_the_trainings_run_alone(tmp_path):
         for name in ("return", "policy_loss", "value_loss", "episode_length"):
             assert by_member[name] == pytest.approx(by_alone[name], rel=1e-4, abs=1e-6), name
         returns.append(by_member["return"])
-    assert returns[0] != returns[1]                     # the seeds differ
+    assert returns[0] != returns[1]                     # the members differ
     summary = train_commands.evaluate(out / sweep.MEMBERS / "001", episodes=2,
                                       echo=lambda *_: None)[0]
     assert np.isfinite(summary["return"])

@@ -1,7 +1,8 @@
 """Several trainings of one config in one compiled program (PureJaxRL-style): the members'
 training states stacked along a leading axis, every iteration's rollout and PPO update
 `jax.vmap`ped over it. Members differ by their seed and, optionally, their task parameters (a
-sweep's vmappable keys, `agents.sweep`); everything that shapes the program — networks, batch,
+sweep's vmappable keys, `agents.sweep`) and PPO's hyperparameters (learning rates, clip, the
+σ schedule: `agents.rl.ppo.HYPERPARAMETERS`); everything that shapes the program — networks, batch,
 the task's static settings — is shared, and so is the curriculum's static stage (a jump's
 control rate): members whose curricula reach different stages cannot go on in one program, and
 a `TrainingError` says so.
@@ -28,16 +29,18 @@ from jaxsim.atomic import write_text_atomic
 
 class MemberTraining:
     """The trainings of `trainer`'s config with `seeds`, under `env_params` (the task parameters
-    with a leading axis of members; None: the trainer's for every member)."""
+    with a leading axis of members; None: the trainer's for every member) and `hyper` (PPO's
+    `HYPERPARAMETERS`, each an array of one value per member; None: the config's)."""
 
-    def __init__(self, trainer: trainer_lib.Trainer, seeds, env_params=None):
-        self.trainer, self.seeds, self.env_params = trainer, np.asarray(seeds), env_params
+    def __init__(self, trainer: trainer_lib.Trainer, seeds, env_params=None, hyper=None):
+        self.trainer, self.seeds = trainer, np.asarray(seeds)
+        self.env_params, self.hyper = env_params, hyper
         self._collect, self._learn = {}, None
         axis = None if env_params is None else 0
         self._init = jax.jit(jax.vmap(lambda seed, params: trainer.init(seed=seed,
                                                                         env_params=params),
                                       in_axes=(0, axis)))
-        self._axis = axis
+        self._axes = (axis, None if hyper is None else 0)
 
     @property
     def count(self) -> int:
@@ -63,12 +66,16 @@ class MemberTraining:
         [stage] = stages
         if stage not in self._collect:
             rollout = trainer._rollout_of(trainer.env_for(self.member(state.curriculum, 0)))
+            params_axis, hyper_axis = self._axes
             self._collect[stage] = jax.jit(
-                jax.vmap(lambda params, s: trainer._collect(rollout, s, params),
-                         in_axes=(self._axis, 0)),
+                jax.vmap(lambda params, hyper, s: trainer._collect(rollout, s, params, hyper),
+                         in_axes=(params_axis, hyper_axis, 0)),
                 compiler_options=xla_options.simulation_options())
-            self._learn = self._learn or jax.jit(jax.vmap(trainer._learn))
-        return self._learn(state, self._collect[stage](self.env_params, state))
+            self._learn = self._learn or jax.jit(jax.vmap(
+                lambda hyper, s, collected: trainer._learn(s, collected, hyper),
+                in_axes=(hyper_axis, 0, 0)))
+        collected = self._collect[stage](self.env_params, self.hyper, state)
+        return self._learn(self.hyper, state, collected)
 
 
 def train(members: MemberTraining, configs, member_dirs, group_dir, echo=print):

@@ -151,8 +151,22 @@ class PPOState:
     iteration: jax.Array      # updates done
 
 
-def _optimiser(learning_rate, max_grad_norm):
-    adam = optax.adam(learning_rate)
+# The settings a training's program takes as arrays (`hyperparameters`), so several trainings
+# that differ in them run as one program (`agents.rl.members`); the rest shape the program.
+HYPERPARAMETERS = ("clip", "policy_lr", "value_lr", "sigma_start", "sigma_end", "sigma_horizon")
+
+
+def hyperparameters(settings: PPOSettings) -> dict:
+    """The settings' `HYPERPARAMETERS` ({name: float}; `update` and the trainer's σ take them
+    as numbers or as arrays)."""
+    return {name: getattr(settings, name) for name in HYPERPARAMETERS}
+
+
+def _optimiser(max_grad_norm):
+    """Adam at learning rate 1 (optionally after global-norm clipping): its step is scaled by
+    the learning rate afterwards (`_optimiser_step`), so the rate can be an array; the same
+    state and the same arithmetic as Adam at that rate."""
+    adam = optax.adam(1.0)
     if max_grad_norm > 0:
         return optax.chain(optax.clip_by_global_norm(max_grad_norm), adam)
     return adam
@@ -162,8 +176,9 @@ def _apply_of(module):
     return lambda params, x: module.apply({"params": params}, x)
 
 
-def _optimiser_step(optimiser, grads, opt_state, params):
+def _optimiser_step(optimiser, grads, opt_state, params, learning_rate):
     updates, opt_state = optimiser.update(grads, opt_state, params)
+    updates = jax.tree_util.tree_map(lambda u: u * jnp.asarray(learning_rate, u.dtype), updates)
     return optax.apply_updates(params, updates), opt_state
 
 
@@ -181,8 +196,9 @@ class PPO(NamedTuple):
 
 
 def make_ppo(obs_size: int, action_size: int, settings: PPOSettings, spread=None) -> PPO:
-    """The policy and value networks, `init` and the pure, jittable `update(state, batch, key)
-    -> (state, metrics)`: GAE advantages and TD(λ) targets of `batch`, then `settings.epochs`
+    """The policy and value networks, `init` and the pure, jittable `update(state, batch, key,
+    hyper=None) -> (state, metrics)` (`hyper`: the `HYPERPARAMETERS`, numbers or arrays;
+    default the settings'): GAE advantages and TD(λ) targets of `batch`, then `settings.epochs`
     epochs, each a shuffle and a scan of one policy and one value Adam step per minibatch of
     `settings.minibatch_size` flattened (T·N) samples (the remainder is dropped; advantages are
     normalised per minibatch). Metrics are means over all minibatches. `spread`, when given,
@@ -192,8 +208,8 @@ def make_ppo(obs_size: int, action_size: int, settings: PPOSettings, spread=None
     policy_net = PolicyNetwork(action_size, tuple(settings.hidden))
     value_net = ValueNetwork(tuple(settings.hidden))
     policy_apply, value_apply = _apply_of(policy_net), _apply_of(value_net)
-    policy_optimiser = _optimiser(settings.policy_lr, settings.max_grad_norm)
-    value_optimiser = _optimiser(settings.value_lr, settings.max_grad_norm)
+    policy_optimiser = _optimiser(settings.max_grad_norm)
+    value_optimiser = _optimiser(settings.max_grad_norm)
     minibatch = settings.minibatch_size
 
     def init(key, obs_dtype=jnp.float32):
@@ -205,22 +221,23 @@ def make_ppo(obs_size: int, action_size: int, settings: PPOSettings, spread=None
                         value_optimiser.init(value_params), jnp.zeros((), jnp.int32),
                         jnp.zeros((), jnp.int32))
 
-    def minibatch_step(sigma, carry, data):
+    def minibatch_step(sigma, hyper, carry, data):
         policy_params, value_params, policy_opt_state, value_opt_state = carry
         obs, action, old_log_prob, advantage, target = data
         (loss_pi, aux), policy_grads = jax.value_and_grad(policy_loss, argnums=1, has_aux=True)(
             policy_apply, policy_params, obs, action, old_log_prob, _normalised(advantage),
-            sigma, settings.clip)
+            sigma, hyper["clip"])
         loss_v, value_grads = jax.value_and_grad(value_loss, argnums=1)(
             value_apply, value_params, obs, target)
-        policy_params, policy_opt_state = _optimiser_step(policy_optimiser, policy_grads,
-                                                          policy_opt_state, policy_params)
-        value_params, value_opt_state = _optimiser_step(value_optimiser, value_grads,
-                                                        value_opt_state, value_params)
+        policy_params, policy_opt_state = _optimiser_step(
+            policy_optimiser, policy_grads, policy_opt_state, policy_params, hyper["policy_lr"])
+        value_params, value_opt_state = _optimiser_step(
+            value_optimiser, value_grads, value_opt_state, value_params, hyper["value_lr"])
         metrics = {"policy_loss": loss_pi, "value_loss": loss_v, **aux}
         return (policy_params, value_params, policy_opt_state, value_opt_state), metrics
 
-    def update(state: PPOState, batch: Batch, key):
+    def update(state: PPOState, batch: Batch, key, hyper=None):
+        hyper = hyperparameters(settings) if hyper is None else hyper
         steps, envs = batch.reward.shape
         count = steps * envs
         n_minibatches = count // minibatch
@@ -232,8 +249,8 @@ def make_ppo(obs_size: int, action_size: int, settings: PPOSettings, spread=None
         advantage = target - batch.value
         flat = jax.tree_util.tree_map(lambda x: x.reshape(count, *x.shape[2:]),
                                       (batch.obs, batch.action, batch.log_prob, advantage, target))
-        sigma = sigma_at(state.samples, settings.sigma_start, settings.sigma_end,
-                         settings.sigma_horizon)
+        sigma = sigma_at(state.samples, hyper["sigma_start"], hyper["sigma_end"],
+                         hyper["sigma_horizon"])
 
         def epoch(carry, epoch_key):
             order = jax.random.permutation(epoch_key, count)[: n_minibatches * minibatch]
@@ -241,7 +258,8 @@ def make_ppo(obs_size: int, action_size: int, settings: PPOSettings, spread=None
             shuffled = jax.tree_util.tree_map(lambda x: x[order], flat)
             if spread is not None:
                 shuffled = spread(shuffled)
-            return jax.lax.scan(lambda c, d: minibatch_step(sigma, c, d), carry, shuffled)
+            return jax.lax.scan(lambda c, d: minibatch_step(sigma, hyper, c, d), carry,
+                                shuffled)
 
         carry = (state.policy_params, state.value_params, state.policy_opt_state,
                  state.value_opt_state)

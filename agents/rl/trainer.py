@@ -52,6 +52,7 @@ from agents.rl import curriculum as curriculum_lib
 from agents.rl import parallel
 from agents.rl import rollout as rollout_lib
 from agents.rl.networks import sigma_at
+from agents.rl import ppo as ppo_lib
 from agents.rl.ppo import PPOSettings, PPOState, RunningNorm, make_ppo
 from jaxsim import runlog, xla_options
 
@@ -167,9 +168,11 @@ class Trainer:
         twin.run_settings = run
         return twin
 
-    def sigma(self, samples):
-        s = self.ppo_settings
-        return sigma_at(samples, s.sigma_start, s.sigma_end, s.sigma_horizon)
+    def sigma(self, samples, hyper=None):
+        """The policy's σ after `samples` samples, by the settings' schedule (or `hyper`'s,
+        `ppo.hyperparameters`)."""
+        h = ppo_lib.hyperparameters(self.ppo_settings) if hyper is None else hyper
+        return sigma_at(samples, h["sigma_start"], h["sigma_end"], h["sigma_horizon"])
 
     def env_params_for(self, curriculum_state, envs: int | None = None, base=None):
         """The task parameters of each environment (a leading axis of `envs`, default the run's)
@@ -296,22 +299,22 @@ class Trainer:
         checkpoint holds; in a multi-process run every process must call it)."""
         return self.layout.host(state)
 
-    def _collect(self, rollout, state: TrainState, env_params=None):
+    def _collect(self, rollout, state: TrainState, env_params=None, hyper=None):
         """The rollout of an iteration, from the state's key (under the trainer's task
-        parameters, or `env_params`)."""
+        parameters and PPO hyperparameters, or `env_params` and `hyper`)."""
         key, rollout_key, update_key = jax.random.split(state.key, 3)
         p = state.ppo
         runner, batch, raw_obs, episodes, env_metrics, _ = rollout(
             self.env_params_for(state.curriculum, base=env_params), state.runner, p.policy_params,
-            p.value_params, state.norm, self.sigma(p.samples), rollout_key)
+            p.value_params, state.norm, self.sigma(p.samples, hyper), rollout_key)
         return runner, batch, raw_obs, episodes, env_metrics, key, update_key
 
-    def _learn(self, state: TrainState, collected):
-        """The rest of an iteration from its rollout: PPO's update, the observation statistics,
-        the curriculum and the metrics."""
+    def _learn(self, state: TrainState, collected, hyper=None):
+        """The rest of an iteration from its rollout: PPO's update (under `hyper`, default the
+        settings'), the observation statistics, the curriculum and the metrics."""
         runner, batch, raw_obs, episodes, env_metrics, key, update_key = collected
         norm = state.norm.update(raw_obs)
-        ppo_state, metrics = self.ppo.update(state.ppo, batch, update_key)
+        ppo_state, metrics = self.ppo.update(state.ppo, batch, update_key, hyper)
         mean_return, mean_length, finished = rollout_lib.episode_summary(episodes)
         curriculum = self.curriculum.update(state.curriculum,
                                             jnp.where(finished > 0, mean_return, 0.0))
