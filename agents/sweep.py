@@ -57,8 +57,9 @@ class Sweep:
     base: dict | None = None    # a training sweep's config, its [sweep] table taken out
 
     def plan(self) -> dict:
-        """What makes a sweep this sweep (`sweep.json`): a rerun must agree on all of it."""
-        return {"source": self.source, "evaluate": self.evaluate, "episodes": self.episodes,
+        """What makes a sweep this sweep (`sweep.json`): a rerun must agree on all of it (the
+        config's path aside)."""
+        return {"evaluate": self.evaluate, "episodes": self.episodes,
                 "difficulty": self.difficulty, "vmap": self.vmap, "base": self.base,
                 "keys": list(self.keys), "members": self.members}
 
@@ -87,11 +88,11 @@ def _check_settings(settings, path):
     if not isinstance(settings["evaluate"], str):
         raise config_io.ConfigError(f"{path}: sweep.evaluate must be a run directory (a "
                                     f"string); got {settings['evaluate']!r}")
-    for name in ("episodes", "workers"):
+    for name, most in (("episodes", config_io.MAX_INT), ("workers", config_io.MAX_INT)):
         value = settings[name]
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise config_io.ConfigError(f"{path}: sweep.{name} must be a whole number ≥ 1; "
-                                        f"got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= most:
+            raise config_io.ConfigError(f"{path}: sweep.{name} must be a whole number from 1 "
+                                        f"to {most:,}; got {value!r}")
     if not isinstance(settings["vmap"], bool):
         raise config_io.ConfigError(f"{path}: sweep.vmap must be true or false; got "
                                     f"{settings['vmap']!r}")
@@ -151,7 +152,7 @@ def run(path, out_dir=None, overrides=(), data_dir=None, echo=print) -> Path:
     sweep = load(path, overrides)
     out = Path(out_dir or Path("runs") / Path(path).stem)
     _claim(out, sweep)
-    done = {row["member"] for row in _rows(out)}
+    done = {row["member"] for row in rows_of(out, echo)}
     todo = [i for i in range(len(sweep.members)) if i not in done]
     kind = "evaluation" if sweep.evaluate else "training"
     echo(f"sweep of {len(sweep.members)} members ({kind}; {', '.join(sweep.keys)}) → {out}"
@@ -160,7 +161,7 @@ def run(path, out_dir=None, overrides=(), data_dir=None, echo=print) -> Path:
         _evaluate(sweep, out, data_dir, echo)
     elif todo:
         _train(sweep, out, todo, data_dir, echo)
-    rows = _rows(out)
+    rows = rows_of(out, echo)
     for name in sweep_report.write(out, sweep.keys, rows):
         echo(f"wrote {out / name}")
     return out
@@ -183,11 +184,12 @@ def _claim(out: Path, sweep: Sweep):
     write_text_atomic(path, json.dumps(plan, indent=1) + "\n")
 
 
-def _rows(out: Path) -> list[dict]:
+def rows_of(out: Path, echo=print) -> list[dict]:
+    """The rows of the members done (a torn last line, from a kill, set aside and said)."""
     log = runlog.read(out / ROWS)
     note = runlog.repair(log) if not log.intact else ""
     if note:
-        print(f"warning: {note}")
+        echo(f"warning: {note}")
     return log.records
 
 

@@ -69,7 +69,7 @@ def train(args):
             out = sweep.run(config, Path(folder) / way, data_dir=args.data_dir,
                             echo=lambda *_: None)
             seconds = time.perf_counter() - started
-            rows = sorted(sweep._rows(out), key=lambda r: r["member"])
+            rows = sorted(sweep.rows_of(out), key=lambda r: r["member"])
             result[way] = {"seconds": seconds, "returns": [r["return"] for r in rows]}
             print(f"{way}: {seconds:.1f} s, returns {[round(r['return'], 4) for r in rows]}")
     result["speedup"] = result["in_a_row"]["seconds"] / result["one_program"]["seconds"]

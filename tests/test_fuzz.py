@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 
 from agents import config as config_io
+from agents import sweep
 from agents.checkpoint import CheckpointError, fill, read_msgpack, write_msgpack
-from agents.commands import strategy_search, train_commands
+from agents.commands import sensitivity_command, strategy_search, train_commands
 from agents.config import ConfigError
 from agents.datadir import data_dir_from
 from agents.pose import pose_dataset, pvae
@@ -304,9 +305,13 @@ def run_file_cases():
 
 def config_loader(name, data):
     """How the config file `name` (its table `data`) is read: `load(path, overrides=())` —
-    the P-VAE's, a search's (it names its black box) or a training's."""
+    the P-VAE's, a search's (it names its black box), a sweep's (it has a [sweep] table), a
+    sensitivity study's or a training's."""
+    if "sweep" in data:
+        return sweep.load
     schema = (pvae.PVAEConfig if name == "pvae.toml"
-              else strategy_search.SearchConfig if "black_box" in data else None)
+              else strategy_search.SearchConfig if "black_box" in data
+              else sensitivity_command.SensitivityConfig if "sensitivity" in data else None)
     if schema is None:
         return train_commands.load_config
     return lambda path, overrides=(): config_io.load(path, schema, overrides)

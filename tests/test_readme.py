@@ -59,7 +59,7 @@ def smaller(words, small_data):
     text = " ".join(words)
     key = max((k for k in COMMAND_SMALLER if text.startswith(k)), key=len, default=None)
     extra = [] if key is None else COMMAND_SMALLER[key]
-    return words + [w.format(small_data=small_data) for w in extra]
+    return words + [w.replace("{small_data}", str(small_data)) for w in extra]
 
 
 @pytest.fixture(scope="module")

@@ -58,7 +58,9 @@ class SensitivitySettings:
 
 
 @dataclass(frozen=True)
-class _File:
+class SensitivityConfig:
+    """A sensitivity config file: its one section."""
+
     sensitivity: SensitivitySettings = field(default_factory=SensitivitySettings)
 
 
@@ -67,7 +69,7 @@ def run(config_path, out_dir=None, overrides=(), data_dir=None, echo=print):
     from agents.commands import train_commands
     from agents.rl import trainer as trainer_lib
 
-    settings = config_io.load(config_path, _File, overrides).sensitivity
+    settings = config_io.load(config_path, SensitivityConfig, overrides).sensitivity
     section = ([] if not any(p.startswith("physics.") for p in settings.parameters)
                else ["physics.length_scale=1.0"])          # (kept if the config sets it)
     if settings.run:
