@@ -15,6 +15,7 @@ import dataclasses
 import json
 import math
 import tomllib
+import types
 import typing
 from pathlib import Path
 
@@ -137,6 +138,10 @@ def build(schema, data, source, prefix=""):
 
 
 def _convert(kind, value, source, key):
+    if isinstance(kind, types.UnionType) and type(None) in typing.get_args(kind):
+        if value is None:                       # a stored config.json's null; TOML has none
+            return None
+        kind, = (k for k in typing.get_args(kind) if k is not type(None))   # float | None
     if dataclasses.is_dataclass(kind):
         return build(kind, value, source, key + ".")
     if typing.get_origin(kind) is tuple:

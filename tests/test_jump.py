@@ -75,6 +75,25 @@ def test_the_takeoff_state_has_x_s_root_velocities_in_the_facing_frame_and_the_c
         np.testing.assert_allclose(env.heading[:, 1], [0, 1, 0], atol=1e-12)
 
 
+def test_the_vertical_velocity_parameter_sets_the_root_s_upward_take_off_speed(highjump):
+    """Its default is the clip's (so x alone decides the take-off); set, it replaces only the
+    root's vertical velocity, and the take-off foot stays planted."""
+    env = highjump
+    clip_q, clip_qd = takeoff_state.clip_state(env.model, _clip(env), env.takeoff.time)
+    clip_velocity = takeoff_state.facing_velocities(clip_q, clip_qd)[1]
+    params = env.default_params()
+    assert float(params["vertical_velocity"]) == pytest.approx(float(clip_velocity[1]),
+                                                                abs=1e-12)
+    foot = env.model.topology.link_index(env.takeoff.foot)
+    faster = {**params, "vertical_velocity": params["vertical_velocity"] + 0.5}
+    state = env.reset(faster, jax.random.PRNGKey(0))
+    velocity = takeoff_state.facing_velocities(state.physics.q, state.physics.qd)[1]
+    np.testing.assert_allclose(velocity, [clip_velocity[0], clip_velocity[1] + 0.5,
+                                          params["takeoff"][3]], atol=1e-12)
+    np.testing.assert_allclose(takeoff_state.foot_velocity(env.model, state.physics.q,
+                                                           state.physics.qd, foot), 0, atol=1e-9)
+
+
 def test_the_sprint_turns_as_the_fixed_omega_y_does(highjump):
     """ω_y = −3 rad/s is the curved sprint's own turning at take-off (the thesis's "3 rad/s")."""
     clip = _clip(highjump)
@@ -478,6 +497,7 @@ def test_landing_on_the_feet_is_safe_only_feet_first(data_dir):
     ("highjump.pvae='no/such/run'", "pvae: no/such/run/pvae.msgpack: missing"),
     ("highjump.landing='hands'", "landing must be one of"),
     ("highjump.sim_hz=500.0", "sim_hz must be a whole multiple of 15 Hz"),
+    ("highjump.vertical_velocity='fast'", "'highjump.vertical_velocity' must be a float"),
 ])
 def test_bad_jump_settings_name_the_key(override, message, tmp_path, data_dir):
     with pytest.raises(ConfigError, match=message.replace("[", r"\[")) as error:

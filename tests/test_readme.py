@@ -6,7 +6,6 @@ and benchmarks are linked. Anything a user types from the README that fails fail
 import os
 import re
 import shlex
-import shutil
 import subprocess
 import sys
 from pathlib import Path

@@ -109,6 +109,8 @@ class JumpSettings:
     character: str = "humanoid3d_jumper60kg.txt"   # under <data>/jump/characters, or a path
     controller: str = "humanoid3d_ctrl.txt"  # under <data>/deepmimic/controllers, or a path
     takeoff: tuple[float, ...] = ()          # x; empty: the task's default row
+    vertical_velocity: float | None = None   # the root's upward take-off speed, m/s; beside x,
+    #                                          for sweeps and sensitivity studies (None: the clip's)
     actions: str = "pvae"                    # "pvae" (latent + offsets) or "pd"
     pvae: str = "runs/pvae"                  # a `takeoff pvae train` run directory
     sim_hz: float = 600.0
@@ -361,12 +363,16 @@ class JumpEnv:
             raise ConfigError(f"pvae: {error}") from None
 
     def default_params(self):
-        """Task parameters (per environment under the trainer): gravity, the take-off x, the
-        difficulty z and the offset coefficient of the curriculum's start."""
+        """Task parameters (per environment under the trainer): gravity, the take-off x and
+        vertical velocity, the difficulty z and the offset coefficient of the curriculum's start."""
         dtype = self.q0.dtype
         z = jnp.asarray(self.settings.z_min, dtype)
+        vertical = self.settings.vertical_velocity
+        if vertical is None:
+            vertical = takeoff_state.facing_velocities(self.q0, self.qd0)[1][1]
         return {"gravity": jnp.asarray(self.settings.gravity, dtype),
-                "takeoff": jnp.asarray(self.settings.x, dtype), "difficulty": z,
+                "takeoff": jnp.asarray(self.settings.x, dtype),
+                "vertical_velocity": jnp.asarray(vertical, dtype), "difficulty": z,
                 "c_offset": offset_coefficient(self.kind, z).astype(dtype)}
 
     def geometry(self, task):
@@ -401,7 +407,8 @@ class JumpEnv:
         q0 = (self.q0 if model is self.model else
               takeoff_state.grounded(model, self.q0, self.takeoff.foot))
         qd = takeoff_state.takeoff_velocity(self.kind, model, q0, self.qd0,
-                                            params["takeoff"], self._takeoff_foot)
+                                            params["takeoff"], self._takeoff_foot,
+                                            params["vertical_velocity"])
         physics = simulation.init_state(model, self.world, q0, qd)
         dtype = self.q0.dtype
         zero = jnp.zeros((), dtype)
@@ -522,9 +529,8 @@ def _make(settings, data_dir):
     return JumpEnv(settings, data_dir)
 
 
-registry.register(registry.Task("highjump", HighJumpSettings, _make,
-                                fixed_on_resume=("character", "actions", "pvae"),
-                                takes_physics=True, vmappable=("gravity", "takeoff")))
-registry.register(registry.Task("obstacle", ObstacleSettings, _make,
-                                fixed_on_resume=("character", "actions", "pvae"),
-                                takes_physics=True, vmappable=("gravity", "takeoff")))
+TASK_PARAMETERS = ("gravity", "takeoff", "vertical_velocity")   # settings that vary per env
+for _kind, _settings in (("highjump", HighJumpSettings), ("obstacle", ObstacleSettings)):
+    registry.register(registry.Task(_kind, _settings, _make,
+                                    fixed_on_resume=("character", "actions", "pvae"),
+                                    takes_physics=True, vmappable=TASK_PARAMETERS))

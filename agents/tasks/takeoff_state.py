@@ -195,10 +195,13 @@ def planted(model, q, qd, foot: int):
     return qd.at[dofs].add(jnp.linalg.pinv(jacobian) @ -velocity)
 
 
-def takeoff_velocity(kind: str, model, q, qd, x, foot: int):
+def takeoff_velocity(kind: str, model, q, qd, x, foot: int, vertical=None):
     """The take-off state's qd from the clip's (q, qd) at the take-off frame and x, with the
-    take-off foot `foot` planted (`planted`)."""
+    root's upward velocity `vertical` (None: the clip's) and the take-off foot `foot` planted
+    (`planted`)."""
     omega, velocity = facing_velocities(q, qd)
+    if vertical is not None:
+        velocity = velocity.at[1].set(jnp.asarray(vertical, qd.dtype))
     x = jnp.asarray(x, qd.dtype)
     if kind == "highjump":
         omega = jnp.stack([x[1], jnp.asarray(HIGHJUMP_OMEGA_Y, qd.dtype), x[2]])
