@@ -13,7 +13,9 @@ with the control steps' states, not with every substep's intermediates.
 Outcomes (`OUTCOMES`): `apex_height`, the highest the centre of mass gets (the jump tasks track
 it every substep; other tasks at control steps); `clearance`, a jump's centre of mass over the
 bar where it crosses the bar's plane (0 when it never does); `final_root_height`; `travel`, the
-root's horizontal distance from where it started; `return`, the sum of the rewards.
+root's horizontal distance from where it started; `return`, the sum of the rewards;
+`tracking_error`, the mean over the control steps of the joint angles' error to the reference
+clip in degrees (the imitation and run-up tasks' `pose_error_degrees`).
 
 Parameters are named as config keys: `physics.<factor>` (`agents.tasks.physics`), or a task
 parameter `<task>.<name>` with `[i]` for one number of a vector (`highjump.takeoff[3]`, the
@@ -35,7 +37,9 @@ import jax.numpy as jnp
 import numpy as np
 
 FLOOR = 1e-4
-OUTCOMES = ("apex_height", "clearance", "final_root_height", "travel", "return")
+OUTCOMES = ("apex_height", "clearance", "final_root_height", "travel", "return",
+            "tracking_error")
+TRACKING_METRIC = "pose_error_degrees"
 _NAME = re.compile(r"^([A-Za-z_][\w]*)\.([A-Za-z_]\w*)(?:\[(\d+)\])?$")
 
 
@@ -154,6 +158,12 @@ def rollout_outcome(env, params: dict, parsed: dict, act, outcome: str, steps: i
     if outcome not in OUTCOMES:
         raise ValueError(f"outcome must be one of {', '.join(OUTCOMES)}; got {outcome!r}")
     key = jax.random.PRNGKey(0) if key is None else key
+    if outcome == "tracking_error":
+        metrics = jax.eval_shape(env.reset, params, key).metrics     # traced, not run
+        if TRACKING_METRIC not in metrics:
+            raise ValueError(f"outcome 'tracking_error' needs a task that follows a reference "
+                             f"clip (imitation, runup); this one reports "
+                             f"{', '.join(sorted(metrics)) or 'no metrics'}")
 
     def com_height(model, q):
         return kinematics.center_of_mass(model, q)[1]
@@ -165,17 +175,19 @@ def rollout_outcome(env, params: dict, parsed: dict, act, outcome: str, steps: i
         model = env.physical(run_params, env.world)[0] if hasattr(env, "physical") else env.model
 
         def control_step(carry, _):
-            state, total, apex = carry
+            state, total, apex, error = carry
             state = env.step(run_params, state, act(state.obs))
             apex = jnp.maximum(apex, com_height(model, state.physics.q))
-            return (state, total + state.reward, apex), None
+            error = error + state.metrics.get(TRACKING_METRIC, jnp.zeros_like(error))
+            return (state, total + state.reward, apex, error), None
 
         body = jax.checkpoint(control_step) if remat else control_step
         zero = jnp.zeros((), start.reward.dtype)
-        (end, total, apex), _ = jax.lax.scan(
-            body, (start, zero, com_height(model, start.physics.q)), None, length=steps)
+        (end, total, apex, error), _ = jax.lax.scan(
+            body, (start, zero, com_height(model, start.physics.q), zero), None, length=steps)
         q0, q1 = start.physics.q, end.physics.q
-        return {"apex_height": end.task["peak_com"] if tracks_peak else apex,
+        return {"tracking_error": error / steps,
+                "apex_height": end.task["peak_com"] if tracks_peak else apex,
                 "clearance": (end.task["clearance"] if isinstance(end.task, dict)
                               and "clearance" in end.task else jnp.nan * zero),
                 "final_root_height": q1[1],

@@ -1,14 +1,14 @@
 """Sensitivity studies (`agents.sensitivity`): the gradient of a ballistic apex against its
-analytic value, an articulated PD rollout's gradient against central finite differences, a
-contact-free gradient that agrees being marked so and a made-up disagreement flagged, and
-parameter names checked."""
+analytic value, an articulated PD rollout's gradient (its return, a walk's tracking error)
+against central finite differences, a contact-free gradient that agrees being marked so and a
+made-up disagreement flagged, and parameter names checked."""
 
 import jax
 import jax.numpy as jnp
 import pytest
 
 from agents import sensitivity
-from agents.tasks import reach
+from agents.tasks import imitation, reach
 from jaxsim import simulation
 from jaxsim.builder import LinkSpec, build_model
 from jaxsim.world import make_world
@@ -68,6 +68,28 @@ def test_an_articulated_rollout_gradient_matches_finite_differences():
     [row] = result.rows
     assert row.value == pytest.approx(-9.81, rel=1e-3)
     assert abs(row.gradient) > 1e-4 and row.agrees, row
+
+
+def test_the_walk_s_tracking_error_gradient_matches_finite_differences(data_dir):
+    """The DeepMimic walk's mean joint-angle error to its clip over 4 control steps (0.13 s,
+    the humanoid falling from a T-pose target) against gravity, in float64; a task without a
+    reference clip is refused the outcome."""
+    env = imitation.ImitationEnv(imitation.ImitationSettings(), data_dir, dtype=jnp.float64)
+    params = env.default_params()
+    parsed = {"imitation.gravity[1]": sensitivity.parse_name("imitation.gravity[1]",
+                                                             "imitation", params)}
+    act = lambda obs: jnp.zeros(env.action_size, obs.dtype)
+    outcome_of = sensitivity.rollout_outcome(env, params, parsed, act, "tracking_error",
+                                             steps=4)
+    result = sensitivity.study(outcome_of, sensitivity.start_values(params, parsed),
+                               fd_step=1e-6, tolerance=1e-4)
+    [row] = result.rows
+    assert 0.5 < result.outcome < 90                     # degrees, on average over the joints
+    assert abs(row.gradient) > 1e-5 and row.agrees, row
+    arm = reach.ReachEnv(reach.ReachSettings(), dtype=jnp.float64)
+    with pytest.raises(ValueError, match="follows a reference clip"):
+        sensitivity.rollout_outcome(arm, arm.default_params(), {}, act, "tracking_error",
+                                    steps=2)
 
 
 def test_a_disagreement_is_flagged():

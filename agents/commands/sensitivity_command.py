@@ -7,7 +7,7 @@ chart of the elasticities (`sensitivity.png`), flagged gradients in red.
     config = ""                    # … or a training config, driven open loop by `action`
     set = []                       # overrides of that config (as --set)
     action = 0.0                   # open loop: every action number (PD actions: joint targets)
-    outcome = "apex_height"        # agents.sensitivity.OUTCOMES
+    outcome = "apex_height"        # agents.sensitivity.OUTCOMES (tracking_error: imitation, runup)
     parameters = ["highjump.takeoff[3]", "physics.leg_length_scale", "physics.gravity_scale"]
     seconds = 1.0                  # rollout length
     fd_step = 1e-3                 # relative step of the central differences
@@ -102,8 +102,11 @@ def run(config_path, out_dir=None, overrides=(), data_dir=None, echo=print):
     except ValueError as error:
         raise config_io.ConfigError(f"{config_path}: sensitivity.parameters: {error}") from None
     steps = max(1, int(round(settings.seconds / env.control_dt)))
-    outcome_of = sensitivity.rollout_outcome(env, params, parsed, act, settings.outcome, steps,
-                                             settings.remat)
+    try:
+        outcome_of = sensitivity.rollout_outcome(env, params, parsed, act, settings.outcome,
+                                                 steps, settings.remat)
+    except ValueError as error:
+        raise config_io.ConfigError(f"{config_path}: sensitivity.outcome: {error}") from None
     substeps = getattr(env, "substeps", None)
     echo(f"{settings.outcome} of {steps} control steps"
          + (f" ({steps * substeps:,} substeps)" if substeps else "") + " "
