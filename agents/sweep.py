@@ -7,8 +7,8 @@ Two kinds, by what the table's `evaluate` says:
   policy, under the run's config with each member's values, for `episodes` episodes a member at
   the run's curriculum difficulty (or `difficulty`). Every swept key must be a task parameter —
   a `[physics]` factor or a key its task declares `vmappable` (the jump tasks: `gravity`,
-  `takeoff`, `vertical_velocity`) — because all the members run as one compiled rollout of members × episodes
-  environments, each with its own parameters: 256 body shapes are one call, not 256. Any other
+  `takeoff`, `vertical_velocity`) — because all the members run as one compiled rollout of
+  members × episodes environments, each with its own parameters: 256 body shapes are one call, not 256. Any other
   key (a network size, the solver) cannot change under a trained policy in one program and is
   refused, naming it.
 - **A training sweep** (a training config with a `[sweep]` table): each member is a training

@@ -1,7 +1,7 @@
 """What a person reads of a sweep (`agents.sweep`): its rows as `sweep.csv`, a markdown summary
 `sweep.md`, and plots — each headline outcome against each swept number (`sweep_<key>.png`)
-and, when exactly two numbers are swept, heat maps of the first two headline outcomes over
-the two (`sweep_heatmap.png`). The plots need matplotlib (the `render` extra); without it the
+and, when two or more numbers take several values, heat maps of the first two headline
+outcomes over the first two of them, averaged over the others (`sweep_heatmap.png`). The plots need matplotlib (the `render` extra); without it the
 CSV and the summary are still written."""
 
 import csv
@@ -43,8 +43,10 @@ def write(out, keys, rows) -> list[str]:
         name = f"sweep_{key.replace('.', '_')}.png"
         _plot_against(plt, render, rows, key, headline, out / name)
         written.append(name)
-    if len(numeric) == 2 and headline:
-        _heat_map(plt, render, rows, numeric, headline[:2], out / "sweep_heatmap.png")
+    varying = [k for k in numeric if len({row[k] for row in rows}) > 1]
+    if len(varying) >= 2 and headline:
+        _heat_map(plt, render, rows, varying[:2], headline[:2], out / "sweep_heatmap.png",
+                  averaged=varying[2:])
         written.append("sweep_heatmap.png")
     return written
 
@@ -135,9 +137,9 @@ def _plot_against(plt, render, rows, key, headline, path):
     render.save_figure(fig, path, title=f"sweep: outcomes against {key}", dpi=110)
 
 
-def _heat_map(plt, render, rows, keys, names, path):
+def _heat_map(plt, render, rows, keys, names, path, averaged=()):
     """For each outcome of `names`, its mean over the members at each pair of values of the
-    two `keys`."""
+    two `keys` (over the `averaged` keys' values too)."""
     a, b = (np.array([row[k] for row in rows], float) for k in keys)
     rows_a, cols_b = np.unique(a), np.unique(b)
     fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 4.2), squeeze=False)
@@ -159,4 +161,5 @@ def _heat_map(plt, render, rows, keys, names, path):
         ax.set_xlabel(keys[1])
         ax.set_ylabel(keys[0])
         fig.colorbar(image, ax=ax, label=name)
-    render.save_figure(fig, path, title="sweep: " + ", ".join(names), dpi=110)
+    render.save_figure(fig, path, title="sweep: " + ", ".join(names) + (
+        f" (mean over {', '.join(averaged)})" if averaged else ""), dpi=110)

@@ -3,6 +3,7 @@ the crossing feature on a scripted flight, the curriculum and its schedules, the
 settings that give errors naming their key. Float64 (conftest)."""
 
 import dataclasses
+import json
 
 import jax
 import jax.numpy as jnp
@@ -498,12 +499,25 @@ def test_landing_on_the_feet_is_safe_only_feet_first(data_dir):
     ("highjump.landing='hands'", "landing must be one of"),
     ("highjump.sim_hz=500.0", "sim_hz must be a whole multiple of 15 Hz"),
     ("highjump.vertical_velocity='fast'", "'highjump.vertical_velocity' must be a float"),
+    ("highjump.vertical_velocity=nan", "'highjump.vertical_velocity' must be a finite number"),
 ])
 def test_bad_jump_settings_name_the_key(override, message, tmp_path, data_dir):
     with pytest.raises(ConfigError, match=message.replace("[", r"\[")) as error:
         train_commands.train("configs/highjump.toml", tmp_path / "run",
                              ["run.iterations=1", override], data_dir=data_dir)
     assert "highjump" in str(error.value)
+
+
+def test_an_optional_setting_reads_whole_numbers_as_floats_and_round_trips():
+    """`vertical_velocity: float | None`: absent is None (the clip's), 1 is 1.0, and a run's
+    stored config.json (None as null) reads back as the same config."""
+    for section, expected in (({}, None), ({"vertical_velocity": 1}, 1.0)):
+        config = train_commands.build_config({"run": {"task": "highjump"},
+                                              "highjump": section}, "test.toml")
+        assert config.task.vertical_velocity == expected
+        assert type(config.task.vertical_velocity) is type(expected)
+        stored = json.loads(json.dumps(config.sections()))
+        assert train_commands.build_config(stored, "config.json") == config
 
 
 def test_a_blown_up_but_finite_step_ends_the_episode_in_the_state_before(highjump, high_step):

@@ -213,7 +213,7 @@ def test_the_full_motion_is_written_as_gif_bvh_and_summary(motion_run):
     assert error["omega_target"] == pytest.approx([FOSBURY[1], -3.0, FOSBURY[2]], abs=1e-6)
 
 
-def test_a_jump_of_another_x_is_refused(motion_run, data_dir, capsys):
+def test_a_jump_of_another_x_or_vertical_velocity_is_refused(motion_run, data_dir, capsys):
     root, (runup_dir, _), _, _ = motion_run
     other = fresh_run(root / "straddle", "highjump",
                       {"actions": "pd", "takeoff": list(takeoff_state.HIGHJUMP_ROWS["straddle"])},
@@ -223,6 +223,13 @@ def test_a_jump_of_another_x_is_refused(motion_run, data_dir, capsys):
                   "--data-dir", str(data_dir)])
     assert "a run-up hands over to the jump of its own x" in str(caught.value)
     assert str(other) in str(caught.value)
+    faster = fresh_run(root / "faster", "highjump",
+                       {"actions": "pd", "takeoff": list(FOSBURY), "vertical_velocity": 2.0},
+                       data_dir)
+    with pytest.raises(SystemExit) as caught:
+        cli.main(["motion", str(runup_dir), str(faster), "--out", str(root / "no"),
+                  "--data-dir", str(data_dir)])
+    assert "take-off vertical velocity of 2.000 m/s" in str(caught.value)
     with pytest.raises(SystemExit) as caught:
         cli.main(["motion", str(other), str(other), "--out", str(root / "no"),
                   "--data-dir", str(data_dir)])

@@ -36,9 +36,10 @@ def jump_run(tmp_path_factory, data_dir):
 
 
 def test_vmapped_members_equal_each_member_run_alone(tmp_path, jump_run, data_dir):
-    """Leg length × gravity (the [physics] factors) and the take-off x as one rollout of
-    members × episodes environments: each member's outcomes are those of the run's policy
-    evaluated alone under that member's config (float32: to 1e-6)."""
+    """Leg length × gravity (the [physics] factors), the take-off x and its vertical velocity
+    (task parameters) as one rollout of members × episodes environments: each member's outcomes
+    are those of the run's policy evaluated alone under that member's config (float32: to
+    1e-6)."""
     config = tmp_path / "sweep.toml"
     config.write_text(f"""
 [sweep]
@@ -47,37 +48,40 @@ episodes = 2
 "physics.leg_length_scale" = {{linspace = [0.9, 1.1, 2]}}
 physics.gravity_scale = [0.5, 1.0]
 highjump.takeoff = [[-0.5, -3.0, 2.0, -2.4]]
+highjump.vertical_velocity = [0.8, 1.4]
 """)
     out = sweep.run(config, tmp_path / "out", data_dir=data_dir, echo=lambda *_: None)
     rows = [json.loads(line) for line in (out / sweep.ROWS).read_text().splitlines()]
-    assert [r["member"] for r in rows] == [0, 1, 2, 3]
+    assert [r["member"] for r in rows] == list(range(8))
     # the outcomes vary with the members: longer legs stand higher, so the apex is higher
-    assert rows[2]["peak_com"] > rows[0]["peak_com"] + 0.05
-    assert rows[0]["peak_com"] != rows[1]["peak_com"]
-    for row in rows[2:3]:                                          # (legs 1.1, gravity 0.5)
+    assert rows[4]["peak_com"] > rows[0]["peak_com"] + 0.05
+    assert rows[0]["peak_com"] != rows[1]["peak_com"]            # vertical velocity 0.8, 1.4
+    assert rows[0]["peak_com"] != rows[2]["peak_com"]            # gravity 0.5, 1.0
+    for row in rows[5:6]:                            # (legs 1.1, gravity 0.5, 1.4 m/s up)
         alone = train_commands.run_episodes(
             jump_run, 2, data_dir, echo=lambda *_: None, overrides=[
                 f"physics.leg_length_scale={row['physics.leg_length_scale']}",
                 f"physics.gravity_scale={row['physics.gravity_scale']}",
-                "highjump.takeoff=[-0.5, -3.0, 2.0, -2.4]"])
+                "highjump.takeoff=[-0.5, -3.0, 2.0, -2.4]",
+                f"highjump.vertical_velocity={row['highjump.vertical_velocity']}"])
         for name in ("peak_com", "return", "episode_length", "success"):
             values = alone.outcomes[name if name in ("return", "episode_length")
                                     else f"episode/{name}"]
             assert row[name] == pytest.approx(float(np.mean(values)), abs=1e-6), name
     table = list(csv.DictReader((out / "sweep.csv").open()))
-    assert [t["member"] for t in table] == ["0", "1", "2", "3"]
+    assert [t["member"] for t in table] == [str(i) for i in range(8)]
     summary = (out / "sweep.md").read_text()
-    assert "# Sweep: 4 members" in summary and "| peak_com |" in summary
+    assert "# Sweep: 8 members" in summary and "| peak_com |" in summary
     assert (out / "sweep_heatmap.png").exists()
     rerun = []                           # a finished sweep run again evaluates nothing
     sweep.run(config, tmp_path / "out", data_dir=data_dir, echo=rerun.append)
-    assert "4 done before" in rerun[0] and not any("evaluated" in line for line in rerun)
+    assert "8 done before" in rerun[0] and not any("evaluated" in line for line in rerun)
 
 
 def test_in_float64_vmapped_members_equal_each_rollout_alone_to_a_few_ulp(data_dir):
-    """The sweep's members (leg length × take-off vertical speed, `sweep.member_params`) as one
-    vmapped float64 rollout of the jump environment, against each member's rollout compiled
-    alone. Not bit for bit: vmap changes XLA's fusion and summation order, which moves the
+    """The sweep's parameters of its members (leg length × take-off vertical speed,
+    `sweep.member_params`) in one vmapped float64 rollout of the jump environment (the sweep's
+    own path, above, runs in float32 only), against each member's rollout compiled alone. Not bit for bit: vmap changes XLA's fusion and summation order, which moves the
     last bits (a few 1e-15 m after 5 control steps, 300 substeps); 1e-12 bounds that."""
     env = jump.JumpEnv(jump.HighJumpSettings(actions="pd"), data_dir, dtype=jnp.float64)
     params = {**env.default_params(),

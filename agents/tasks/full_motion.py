@@ -105,7 +105,8 @@ jax.tree_util.register_dataclass(
 
 def check_pair(runup_env, jump_env, runup_params, jump_params):
     """A ValueError saying why a run-up cannot hand over to a jump: another kind of jump,
-    another reference clip or take-off frame, another character, another x."""
+    another reference clip or take-off frame, another character, another x or take-off
+    vertical velocity."""
     if runup_env.kind != jump_env.kind:
         raise ValueError(f"the run-up leads into a {runup_env.kind} jump, the jump policy is "
                          f"for the {jump_env.kind}")
@@ -122,6 +123,12 @@ def check_pair(runup_env, jump_env, runup_params, jump_params):
                          f"{np.round(x_runup, 4).tolist()}, the jump for x = "
                          f"{np.round(x_jump, 4).tolist()}: a run-up hands over to the jump of "
                          f"its own x")
+    clip_vertical = float(runup_env.vertical_velocity)
+    jump_vertical = float(jump_params["vertical_velocity"])
+    if abs(jump_vertical - clip_vertical) > 1e-6:
+        raise ValueError(f"the jump was trained from a take-off vertical velocity of "
+                         f"{jump_vertical:.3f} m/s, the run-up arrives with the clip's "
+                         f"{clip_vertical:.3f} m/s (its task reward has no v_y term)")
 
 
 def handover(runup_env, jump_env, physics, fresh):

@@ -369,7 +369,7 @@ class JumpEnv:
         z = jnp.asarray(self.settings.z_min, dtype)
         vertical = self.settings.vertical_velocity
         if vertical is None:
-            vertical = takeoff_state.facing_velocities(self.q0, self.qd0)[1][1]
+            vertical = takeoff_state.clip_vertical_velocity(self.q0, self.qd0)
         return {"gravity": jnp.asarray(self.settings.gravity, dtype),
                 "takeoff": jnp.asarray(self.settings.x, dtype),
                 "vertical_velocity": jnp.asarray(vertical, dtype), "difficulty": z,
@@ -529,8 +529,10 @@ def _make(settings, data_dir):
     return JumpEnv(settings, data_dir)
 
 
-TASK_PARAMETERS = ("gravity", "takeoff", "vertical_velocity")   # settings that vary per env
-for _kind, _settings in (("highjump", HighJumpSettings), ("obstacle", ObstacleSettings)):
-    registry.register(registry.Task(_kind, _settings, _make,
-                                    fixed_on_resume=("character", "actions", "pvae"),
-                                    takes_physics=True, vmappable=TASK_PARAMETERS))
+VMAPPABLE = ("gravity", "takeoff", "vertical_velocity")   # settings that are task parameters
+registry.register(registry.Task("highjump", HighJumpSettings, _make,
+                                fixed_on_resume=("character", "actions", "pvae"),
+                                takes_physics=True, vmappable=VMAPPABLE))
+registry.register(registry.Task("obstacle", ObstacleSettings, _make,
+                                fixed_on_resume=("character", "actions", "pvae"),
+                                takes_physics=True, vmappable=VMAPPABLE))

@@ -133,6 +133,7 @@ class RunupEnv(ImitationEnv):
         self._setup(settings, model, clip, make_world(torque_limits=True, dtype=dtype))
         self.kind = settings.kind
         self.q0, self.qd0 = q0.astype(dtype), qd0.astype(dtype)
+        self.vertical_velocity = takeoff_state.clip_vertical_velocity(self.q0, self.qd0)
         self._takeoff_foot = model.topology.link_index(self.takeoff.foot)
         # (a take-off frame time in float32 may fall a hair short of a whole step)
         self.runup_steps = int(np.floor(self.takeoff.time * settings.control_hz + 1e-4))
@@ -149,9 +150,10 @@ class RunupEnv(ImitationEnv):
     def desired_state(self, x):
         """The take-off state of x, (q, qd): exactly the state `JumpEnv.reset` starts a jump
         episode from (the take-off pose, the clip's velocity with x's root velocities and the
-        take-off foot planted)."""
+        take-off foot planted) when the jump keeps the clip's vertical velocity
+        (`full_motion.check_pair` refuses a jump that does not)."""
         qd = takeoff_state.takeoff_velocity(self.kind, self.model, self.q0, self.qd0, x,
-                                            self._takeoff_foot)
+                                            self._takeoff_foot, self.vertical_velocity)
         return self.q0, qd
 
     def phase(self, t):

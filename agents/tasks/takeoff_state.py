@@ -29,7 +29,8 @@ flop's row (ω_x = −3) does.
 The take-off state is the clip's pose at the take-off frame put down on the take-off foot
 (`grounded`), with the explored features x overwriting the root's velocities and the take-off
 leg's joint velocities changed so that the planted foot stays put (`planted`); everything else —
-v_x, v_y, the other joints' velocities — is the clip's:
+v_x, v_y (unless a jump task's `vertical_velocity` sets it), the other joints' velocities — is
+the clip's:
     high jump  x = (α, ω_x, ω_z, v_z), with ω_y = −3 rad/s;
     obstacle   x = (ω_x, ω_y, ω_z).
 α, the approach angle, turns the bar and the mat about the take-off point, not the character:
@@ -154,6 +155,13 @@ def facing_velocities(q, qd):
     rot = rotations.quat_to_matrix(q[3:7])
     heading = heading_rotation(rot)
     return heading.T @ (rot @ qd[:3]), heading.T @ (rot @ qd[3:6])
+
+
+def clip_vertical_velocity(q, qd):
+    """The root's upward velocity of the clip's (q, qd) at the take-off frame: a jump task's
+    default `vertical_velocity`. Computed once, outside any trace, by every task that needs it,
+    so that their take-off states agree bit for bit."""
+    return facing_velocities(q, qd)[1][1]
 
 
 def with_facing_velocities(q, qd, omega, velocity):
