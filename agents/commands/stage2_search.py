@@ -146,11 +146,11 @@ def stage2_sections(stage1_run, known, iterations) -> dict:
 
 def to_toml(sections) -> str:
     """Nested dicts of plain values as TOML (a JSON string, number, boolean or array is the
-    same TOML value)."""
+    same TOML value; TOML has no null, so a None setting is left out: its default)."""
     lines = []
     for name, table in sections.items():
         lines += [f"[{name}]", *(f"{key} = {json.dumps(value, ensure_ascii=False)}"
-                                 for key, value in table.items()), ""]
+                                 for key, value in table.items() if value is not None), ""]
     return "\n".join(lines)
 
 
