@@ -140,7 +140,7 @@ def build(schema, data, source, prefix=""):
 def _convert(kind, value, source, key):
     if typing.get_origin(kind) in (typing.Union, types.UnionType):
         options = [k for k in typing.get_args(kind) if k is not type(None)]
-        if len(options) != 1 or len(options) == len(typing.get_args(kind)):
+        if len(options) != 1 or type(None) not in typing.get_args(kind):
             raise TypeError(f"config key {key!r}: only `X | None` unions are supported")
         if value is None:                       # a stored config.json's null; TOML has none
             return None

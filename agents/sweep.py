@@ -8,9 +8,9 @@ Two kinds, by what the table's `evaluate` says:
   the run's curriculum difficulty (or `difficulty`). Every swept key must be a task parameter —
   a `[physics]` factor or a key its task declares `vmappable` (the jump tasks: `gravity`,
   `takeoff`, `vertical_velocity`) — because all the members run as one compiled rollout of
-  members × episodes environments, each with its own parameters: 256 body shapes are one call, not 256. Any other
-  key (a network size, the solver) cannot change under a trained policy in one program and is
-  refused, naming it.
+  members × episodes environments, each with its own parameters: 256 body shapes are one call,
+  not 256. Any other key (a network size, the solver) cannot change under a trained policy in
+  one program and is refused, naming it.
 - **A training sweep** (a training config with a `[sweep]` table): each member is a training
   run in `DIR/members/NNN` from the config with the member's values. When every swept key is
   `run.seed`, a task parameter or a PPO hyperparameter (`ppo.policy_lr`, `value_lr`, `clip`,

@@ -1,8 +1,8 @@
 """What a person reads of a sweep (`agents.sweep`): its rows as `sweep.csv`, a markdown summary
 `sweep.md`, and plots — each headline outcome against each swept number (`sweep_<key>.png`)
 and, when two or more numbers take several values, heat maps of the first two headline
-outcomes over the first two of them, averaged over the others (`sweep_heatmap.png`). The plots need matplotlib (the `render` extra); without it the
-CSV and the summary are still written."""
+outcomes over the first two of them, averaged over the others (`sweep_heatmap.png`). The plots
+need matplotlib (the `render` extra); without it the CSV and the summary are still written."""
 
 import csv
 import io

@@ -81,8 +81,9 @@ highjump.vertical_velocity = [0.8, 1.4]
 def test_in_float64_vmapped_members_equal_each_rollout_alone_to_a_few_ulp(data_dir):
     """The sweep's parameters of its members (leg length × take-off vertical speed,
     `sweep.member_params`) in one vmapped float64 rollout of the jump environment (the sweep's
-    own path, above, runs in float32 only), against each member's rollout compiled alone. Not bit for bit: vmap changes XLA's fusion and summation order, which moves the
-    last bits (a few 1e-15 m after 5 control steps, 300 substeps); 1e-12 bounds that."""
+    own path, above, runs in float32 only), against each member's rollout compiled alone. Not
+    bit for bit: vmap changes XLA's fusion and summation order, which moves the last bits (a
+    few 1e-15 m after 5 control steps, 300 substeps); 1e-12 bounds that."""
     env = jump.JumpEnv(jump.HighJumpSettings(actions="pd"), data_dir, dtype=jnp.float64)
     params = {**env.default_params(),
               "physics": physics.params_of(physics.PhysicsSettings(), jnp.float64)}

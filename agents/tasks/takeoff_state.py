@@ -159,8 +159,8 @@ def facing_velocities(q, qd):
 
 def clip_vertical_velocity(q, qd):
     """The root's upward velocity of the clip's (q, qd) at the take-off frame: a jump task's
-    default `vertical_velocity`. Computed once, outside any trace, by every task that needs it,
-    so that their take-off states agree bit for bit."""
+    default `vertical_velocity`. Computed eagerly (outside any trace) by every task that needs
+    it, so that their take-off states agree bit for bit."""
     return facing_velocities(q, qd)[1][1]
 
 
