@@ -85,13 +85,15 @@ def _masked_covariance(x, mask, lengthscales, signal_variance, noise_variance):
 
 
 def _unpack(raw, dim):
-    """Raw unconstrained vector (d + 2,) → Hyperparameters."""
+    """Raw unconstrained vector (k + 2,) → Hyperparameters, with k = d lengthscales (ARD) or
+    k = 1 (one lengthscale for every dimension, broadcast to d)."""
     def bounded(value, bounds):
         low, high = bounds
         return jnp.exp(0.5 * (low + high) + 0.5 * (high - low) * jnp.tanh(value))
-    return Hyperparameters(bounded(raw[:dim], LOG_LENGTHSCALE_RANGE),
-                           bounded(raw[dim], LOG_SIGNAL_RANGE),
-                           bounded(raw[dim + 1], LOG_NOISE_RANGE))
+    count = raw.shape[-1] - 2
+    return Hyperparameters(jnp.broadcast_to(bounded(raw[:count], LOG_LENGTHSCALE_RANGE), (dim,)),
+                           bounded(raw[count], LOG_SIGNAL_RANGE),
+                           bounded(raw[count + 1], LOG_NOISE_RANGE))
 
 
 def _factor(x, residual, mask, hyper):
@@ -109,7 +111,7 @@ def log_marginal_likelihood(x, residual, mask, hyper: Hyperparameters):
             - 0.5 * n * jnp.log(2.0 * jnp.pi))
 
 
-def _fit_one_output(x, residual, mask, key, restarts, steps, learning_rate):
+def _fit_one_output(x, residual, mask, key, restarts, steps, learning_rate, isotropic):
     """Best raw hyperparameters of one output over `restarts` Adam runs (restart 0 starts at the
     middle of every range; the others at random)."""
     dim = x.shape[1]
@@ -130,7 +132,8 @@ def _fit_one_output(x, residual, mask, key, restarts, steps, learning_rate):
         (raw, _), _ = jax.lax.scan(update, (raw, optimizer.init(raw)), None, length=steps)
         return raw, loss(raw)
 
-    starts = jax.random.normal(key, (restarts, dim + 2)).at[0].set(0.0)
+    lengthscales = 1 if isotropic else dim
+    starts = jax.random.normal(key, (restarts, lengthscales + 2)).at[0].set(0.0)
     raws, losses = jax.vmap(run)(starts)
     return raws[jnp.argmin(losses)]
 
@@ -139,7 +142,7 @@ def _standardised_residuals(y, mask, prior_mean, scale):
     return jnp.where(mask[:, None], (y - prior_mean) / scale, 0.0).T                  # (m, n)
 
 
-def _fit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate):
+def _fit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate, isotropic):
     count = jnp.maximum(jnp.sum(mask), 1)
     observed_mean = jnp.sum(jnp.where(mask[:, None], y, 0.0), axis=0) / count
     variance = jnp.sum(jnp.where(mask[:, None], (y - observed_mean) ** 2, 0.0), axis=0) / count
@@ -147,8 +150,8 @@ def _fit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate)
     scale = jnp.where(scale > 0, scale, 1.0)
     residuals = _standardised_residuals(y, mask, prior_mean, scale)
     keys = jax.random.split(key, y.shape[1])
-    raws = jax.vmap(_fit_one_output, in_axes=(None, 0, None, 0, None, None, None))(
-        x, residuals, mask, keys, restarts, steps, learning_rate)
+    raws = jax.vmap(_fit_one_output, in_axes=(None, 0, None, 0, None, None, None, None))(
+        x, residuals, mask, keys, restarts, steps, learning_rate, isotropic)
     hyper = jax.vmap(_unpack, in_axes=(0, None))(raws, x.shape[1])
     return condition(Posterior(x, mask, prior_mean, scale, hyper, None, None), x, y, mask)
 
@@ -164,18 +167,19 @@ def condition(posterior: Posterior, x, y, mask):
     return posterior._replace(x=x, mask=mask, cholesky=chol, alpha=alpha)
 
 
-_fit_jit = jax.jit(_fit, static_argnames=("restarts", "steps"))
+_fit_jit = jax.jit(_fit, static_argnames=("restarts", "steps", "isotropic"))
 
 
 def fit(x, y, mask=None, prior_mean=None, key=None, restarts=8, steps=200, learning_rate=0.05,
-        min_scale=0.0):
+        min_scale=0.0, isotropic=False):
     """Fit a GP to observations x (n, d) in the unit box and y (n, m) (or (n,)).
 
     `mask` (n,) marks the real rows of padded arrays (default: all). `prior_mean` (m,) is the constant
     μ; by default the middle of the observed range of each output. The outputs are standardised by
     their observed standard deviation, but by no less than `min_scale` (m,): with few observations,
     or all of one value, the observed spread says little about how far the function can vary, and
-    the fitted signal variance is a multiple of this unit. Returns a `Posterior`.
+    the fitted signal variance is a multiple of this unit. `isotropic` fits one lengthscale for
+    every input dimension instead of one each (ARD). Returns a `Posterior`.
     """
     x = jnp.asarray(x)
     y = jnp.asarray(y, x.dtype)
@@ -193,7 +197,8 @@ def fit(x, y, mask=None, prior_mean=None, key=None, restarts=8, steps=200, learn
     prior_mean = jnp.broadcast_to(jnp.asarray(prior_mean, x.dtype), (y.shape[1],))
     min_scale = jnp.broadcast_to(jnp.asarray(min_scale, x.dtype), (y.shape[1],))
     key = jax.random.PRNGKey(0) if key is None else key
-    return _fit_jit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate)
+    return _fit_jit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate,
+                    isotropic)
 
 
 @jax.jit

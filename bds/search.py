@@ -31,7 +31,10 @@ failed x is then added as a visited point whose outcome is the model's own predi
 batched rounds' "kriging believer" device), which leaves the posterior mean unchanged and lowers
 the posterior variance around it — so exploration does not go back to a failed x, while the
 diversity acquisition compares only real features. Until a first evaluation succeeds there is no
-model, and the model-based picks are random points (logged as kind "random").
+model, and the model-based picks are random points (logged as kind "random"). With `feasibility`
+on, failures also teach where not to go: a second GP, of the outcomes (success +1, failure −1),
+weights both acquisitions by the probability that x succeeds (`bds.feasibility`). It is fitted once
+per round from the evaluations that returned; a batched round's pending points do not change it.
 
 Every random choice comes from the seed and the index of the pick, so the same settings give the
 same search on the same machine.
@@ -53,7 +56,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsim.executor import Executor, InProcess, LocalProcesses
-from bds import acquisition, gp
+from bds import acquisition, feasibility, gp
 from bds.optimize import direct, maximize_lbfgs
 from jaxsim import runlog
 from jaxsim.atomic import write_text_atomic
@@ -62,6 +65,7 @@ STRATEGIES = ("bds", "random")
 CAPACITY_STEP = 16              # observation arrays are padded to a multiple of this
 LBFGS_CANDIDATES = 1024         # uniform points the L-BFGS starts of an exploration pick come from
 ROTATION_DIM = 3                # the feature size the "rotation" distance takes (a rotation vector)
+SUCCESS_MODEL_KEY = 1 << 30     # the success model's random stream (the picks' are their indices)
 
 
 class SearchError(ValueError):
@@ -96,6 +100,9 @@ class SearchSettings:
     # the prior's ±2σ spans it); otherwise both come from the features seen so far.
     feature_low: tuple[float, ...] = ()
     feature_high: tuple[float, ...] = ()
+    # Weight every model-based pick's acquisition by the chance that x succeeds, from a GP of
+    # the evaluations' successes and failures (`bds.feasibility`); off: Algorithm 1 as written.
+    feasibility: bool = False
 
     def __post_init__(self):
         if self.strategy not in STRATEGIES:
@@ -194,37 +201,55 @@ def _padded(rows, capacity):
 
 
 @partial(jax.jit, static_argnames=("dim", "starts"))
-def _explore(posterior, key, dim, starts):
-    return maximize_lbfgs(partial(acquisition.exploration, posterior), dim, key, starts=starts,
-                          candidates=LBFGS_CANDIDATES)
+def _explore(posterior, success_model, key, dim, starts):
+    objective = feasibility.weighted(partial(acquisition.exploration, posterior), success_model)
+    return maximize_lbfgs(objective, dim, key, starts=starts, candidates=LBFGS_CANDIDATES)
 
 
 @partial(jax.jit, static_argnames=("distance",))
-def _diversity(posterior, points, observed, observed_mask, base, distance):
-    return acquisition.diversity(posterior, points, observed, observed_mask, base, distance)
+def _diversity(posterior, success_model, points, observed, observed_mask, base, distance):
+    diversity = partial(acquisition.diversity, posterior, observed=observed,
+                        observed_mask=observed_mask, base_samples=base, distance=distance)
+    return feasibility.weighted(diversity, success_model)(points)
 
 
-def _diversity_objective(posterior, observed, observed_mask, base, distance):
+def _diversity_objective(posterior, success_model, observed, observed_mask, base, distance):
     """DIRECT's objective: −diversity at a batch of unit points, padded to a power of two so
     the jitted acquisition compiles for few shapes."""
     def objective(points):
         n = len(points)
         size = 1 << max(n - 1, 0).bit_length()
         padded = np.concatenate([points, np.repeat(points[:1], size - n, axis=0)])
-        values = _diversity(posterior, jnp.asarray(padded), observed, observed_mask, base, distance)
+        values = _diversity(posterior, success_model, jnp.asarray(padded), observed,
+                            observed_mask, base, distance)
         return -np.asarray(values)[:n]
     return objective
 
 
-def _pick(settings, kind, posterior, observed_f, observed_mask, dim, key):
+def _pick(settings, kind, posterior, success_model, observed_f, observed_mask, dim, key):
+    """A model-based pick; `success_model` (or None) weights its acquisition by the chance of
+    success (`bds.feasibility`)."""
     if kind == "explore":
-        point, _ = _explore(posterior, key, dim, settings.lbfgs_starts)
+        point, _ = _explore(posterior, success_model, key, dim, settings.lbfgs_starts)
         return np.asarray(point)
     base = jax.random.normal(key, (settings.mc_samples, observed_f.shape[1]), observed_f.dtype)
-    objective = _diversity_objective(posterior, observed_f, observed_mask, base,
+    objective = _diversity_objective(posterior, success_model, observed_f, observed_mask, base,
                                      acquisition.distance_function(settings.distance))
     return direct(objective, np.zeros(dim), np.ones(dim),
                   max_evaluations=settings.direct_evaluations).x
+
+
+def _success_model(settings, x_unit, failed_unit, capacity, key):
+    """The constraint GP of `bds.feasibility` over the successes x_unit and the failures
+    failed_unit, when `settings.feasibility` asks for it and there is a failure to learn from
+    (with none, every pick is taken to succeed); else None."""
+    if not (settings.feasibility and len(failed_unit)):
+        return None
+    x = np.concatenate([x_unit, failed_unit])
+    succeeded = np.arange(capacity) < len(x_unit)
+    return feasibility.fit(_padded(x, capacity), succeeded, np.arange(capacity) < len(x),
+                           jax.random.fold_in(key, SUCCESS_MODEL_KEY), settings.gp_restarts,
+                           settings.gp_steps)
 
 
 def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=None):
@@ -245,6 +270,7 @@ def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=
     prior_mean, min_scale = settings.feature_prior(fs.shape[1])
     posterior = gp.fit(xs, fs, mask, prior_mean=prior_mean, key=key,
                        restarts=settings.gp_restarts, steps=settings.gp_steps, min_scale=min_scale)
+    success_model = _success_model(settings, x_unit, failed_unit, capacity, key)
     visited = n
 
     def believe(point):
@@ -268,8 +294,8 @@ def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=
             # The diversity acquisition compares against the real features and, in a batched
             # round, the pending points' believed ones — never a failure's.
             pending = mask & (np.arange(capacity) >= n + len(failed_unit))
-            point = _pick(settings, kind, posterior, jnp.asarray(fs), jnp.asarray(real | pending),
-                          dim, jax.random.fold_in(key, index))
+            point = _pick(settings, kind, posterior, success_model, jnp.asarray(fs),
+                          jnp.asarray(real | pending), dim, jax.random.fold_in(key, index))
         picks.append(point)
         if j + 1 < count:                         # fantasise the pending point's outcome
             believe(point)

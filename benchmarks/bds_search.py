@@ -37,6 +37,7 @@ Run:  python benchmarks/bds_search.py                       (50 landscapes)
       python benchmarks/bds_search.py --sweep --budget 10         (the splits of Algorithm 1)
       python benchmarks/bds_search.py --feature-range             (BDS told the features' range)
       python benchmarks/bds_search.py --ballistic                 (50 seeds on the ballistic box)
+      python benchmarks/bds_search.py --ballistic --feasibility   (and BDS with bds.feasibility)
 Writes JSON (default benchmarks/results/bds.json; bds_ballistic.json with --ballistic) and
 prints a markdown table.
 """
@@ -79,6 +80,9 @@ METHODS = {
     "bds": dict(strategy="bds", batch=1),
     "bds-q4": dict(strategy="bds", batch=4),
 }
+# --ballistic --feasibility adds BDS (q = 1) whose picks are weighted by the chance of success
+# (`bds.feasibility`).
+FEASIBLE_METHODS = {"bds-feasible": dict(strategy="bds", batch=1, feasibility=True)}
 
 
 def describe_picks(landscape, volumes, result):
@@ -382,21 +386,30 @@ def ballistic(args):
           f"{distribution['failure_fraction']:.3f}", file=sys.stderr, flush=True)
     if args.plot_resolution:
         plot_slices(box, lower, upper, args.plot, args.plot_resolution)
+    methods = {**METHODS, **(FEASIBLE_METHODS if args.feasibility else {})}
     start = time.perf_counter()
-    rows = run_ballistic_searches(box, lower, upper, args, feature_range)
+    rows = run_ballistic_searches(box, lower, upper, args, feature_range, methods)
     search_seconds = time.perf_counter() - start
-    table = ballistic_summary(rows, args.widths, args.checkpoints)
+    table = ballistic_summary(rows, args.widths, args.checkpoints, methods)
     headline = table[str(args.bin_width)]
     lines = [f"bin width {args.bin_width:g}°, {args.seeds} seeds:", "", markdown_table(
         ["method", *(f"distinct @{c} (mean ± s.e.)" for c in args.checkpoints)],
         [[method, *(f"{m:.2f} ± {e:.2f}" for m, e in by_c.values())]
          for method, by_c in headline.items()]), ""]
     lines.append(width_table(table, distribution, args.widths, args.checkpoints))
+    if args.feasibility:
+        lines += ["", "with the success model, per bin width (distinct strategies, ratio to "
+                  "the same method without it):"]
+        for w in args.widths:
+            lines.append(f"  {w:g}°: " + "; ".join(
+                f"{m} @{c} {table[str(w)][m][str(c)][0]:.2f} "
+                f"({table[str(w)][m][str(c)][0] / table[str(w)][m.removesuffix('-feasible')][str(c)][0]:.2f}×)"
+                for m in FEASIBLE_METHODS for c in args.checkpoints))
     failures = {m: float(np.mean([r["failures"] for r in rows if r["method"] == m]))
-                for m in METHODS}
+                for m in methods}
     timing = {m: {"search_s": float(np.mean([r["seconds"] for r in rows if r["method"] == m])),
                   "black_box_s": float(np.mean([r["black_box_seconds"] for r in rows
-                                                if r["method"] == m]))} for m in METHODS}
+                                                if r["method"] == m]))} for m in methods}
     lines.append("")
     lines.append("failures per search: " + ", ".join(f"{m} {v:.2f}" for m, v in failures.items()))
     lines.append("seconds per search (of which the black box): " + ", ".join(
@@ -442,6 +455,9 @@ def main(argv=None):
                              "degrees (15, 45 and 60 are reported too)")
     parser.add_argument("--uniform", type=int, default=4096,
                         help="--ballistic: uniform points for the up angle's distribution")
+    parser.add_argument("--feasibility", action="store_true",
+                        help="--ballistic: also run BDS with its picks weighted by the chance "
+                             "of success (bds.feasibility)")
     parser.add_argument("--unknown-range", action="store_true",
                         help="--ballistic: do not tell the searches the up angle's range [0, π]")
     parser.add_argument("--plot", type=Path, default=DEFAULT_PLOT,

@@ -73,6 +73,42 @@ def test_marginal_likelihood_fit_recovers_known_lengthscales():
     assert float(posterior.hyper.noise_variance[0]) < 0.05
 
 
+def test_an_isotropic_fit_shares_one_lengthscale_and_recovers_it():
+    """Draw from a GP with one lengthscale 0.3 on both inputs: the isotropic fit returns equal
+    lengthscales near it, and its marginal likelihood is the ARD one's at those lengthscales."""
+    rng = np.random.default_rng(4)
+    x = rng.uniform(size=(120, 2))
+    k = numpy_matern52(x, x, np.array([0.3, 0.3]), 1.0) + 1e-4 * np.eye(120)
+    y = np.linalg.cholesky(k) @ rng.normal(size=120)
+    posterior = gp.fit(x, y, prior_mean=0.0, key=jax.random.PRNGKey(3), restarts=4, steps=300,
+                       isotropic=True)
+    scales = np.asarray(posterior.hyper.lengthscales[0])
+    assert scales.shape == (2,) and scales[0] == scales[1]
+    assert 0.15 < scales[0] < 0.6, scales
+
+
+def test_success_probability_is_phi_of_mean_over_std_and_follows_the_outcomes():
+    """P[c > 0] = Φ(μ_c/σ_c) of the ±1 label GP (bds.feasibility): ½ halfway between a success
+    and a failure (μ_c = 0 by symmetry), high near successes, low near failures."""
+    from jax.scipy.stats import norm
+    from bds import feasibility
+    x = np.array([[0.2, 0.5], [0.25, 0.3], [0.8, 0.5], [0.75, 0.7]])
+    succeeded = np.array([True, True, False, False])
+    model = feasibility.fit(x, succeeded, np.ones(4, bool), jax.random.PRNGKey(0), 4, 200)
+    assert float(model.hyper.lengthscales[0, 0]) == float(model.hyper.lengthscales[0, 1])
+    points = jnp.array([[0.5, 0.5], [0.22, 0.4], [0.78, 0.6]])
+    mean, variance = gp.predict(model, points)
+    probability = feasibility.success_probability(model, points)
+    np.testing.assert_allclose(probability, norm.cdf(mean[:, 0] / jnp.sqrt(variance[:, 0])),
+                               rtol=1e-6)
+    assert abs(float(probability[0]) - 0.5) < 1e-6
+    assert float(probability[1]) > 0.8 and float(probability[2]) < 0.2
+    acquisition_value = lambda z: jnp.sum(z, axis=1)
+    np.testing.assert_allclose(feasibility.weighted(acquisition_value, model)(points),
+                               jnp.sum(points, axis=1) * probability, rtol=1e-12)
+    assert feasibility.weighted(acquisition_value, None) is acquisition_value
+
+
 def test_monte_carlo_diversity_converges_to_the_closed_form():
     rng = np.random.default_rng(4)
     x = rng.uniform(size=(6, 1))

@@ -649,3 +649,25 @@ def test_with_no_success_yet_the_model_picks_are_random_points():
     result = search(_fails_left_of(2.0), [0, 0], [1, 1], settings)       # everything fails
     assert result.kinds == ["initial", "initial"] + ["random"] * 4
     assert all(result.failures)
+
+
+def test_the_success_model_keeps_picks_out_of_the_failing_region():
+    """Half the box fails (x[0] < 0.5). Weighting the picks by the chance of success
+    (`feasibility`) must spend fewer of the model-based picks there than Algorithm 1 as written,
+    over the same seeds; with no failure yet the two plan the same points."""
+    failing = _fails_left_of(0.5)
+    def failed_picks(feasible):
+        count = 0
+        for seed in range(4):
+            settings = SearchSettings(budget=12, initial=4, explore=2, diverse=2, seed=seed,
+                                      feasibility=feasible, **FAST)
+            result = search(failing, [0, 0], [1, 1], settings)
+            count += sum(f is not None for f in result.failures[4:])
+        return count
+    plain, feasible = failed_picks(False), failed_picks(True)
+    assert feasible < plain / 2, (feasible, plain)
+    succeeding = lambda x: np.array([np.sin(4 * x[0]) + x[1]])
+    runs = [search(succeeding, [0, 0], [1, 1],
+                   SearchSettings(budget=6, initial=3, explore=1, diverse=1, seed=2,
+                                  feasibility=feasible, **FAST)).x for feasible in (False, True)]
+    np.testing.assert_array_equal(runs[0], runs[1])

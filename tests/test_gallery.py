@@ -189,6 +189,26 @@ def test_strategies_are_grouped_as_bds_strategies_groups(search_dir, written):
     assert "1.10 m" in summary                            # strategy 0's best is 003's bar
 
 
+def test_an_evaluation_measured_again_says_so_and_keeps_the_logged_grouping(
+        search_dir, written, data_dir, tmp_path):
+    """Evaluation 003 retrained and measured again (a lost policy): its card says its
+    result.json is not what the search logged, and it is still grouped by the log's value."""
+    import shutil
+    copy = tmp_path / "search"
+    shutil.copytree(search_dir, copy)
+    path = jump_black_box.evaluation_dir(copy, 3) / jump_black_box.RESULT
+    result = json.loads(path.read_text())
+    result["feature"]["up_angle"] = 0.9
+    path.write_text(json.dumps(result))
+    page = gallery.write_gallery(copy, tmp_path / "out", data_dir,
+                                 echo=lambda *_: None).read_text()
+    card = _card(page, "eval-003")
+    assert (f"up angle {math.degrees(0.9):.1f}°) is not the measurement the search logged "
+            f"({math.degrees(0.35):.1f}°") in card
+    assert "href='#eval-001'>001</a>)" in card                 # still 001's strategy
+    assert "measured again" not in _card(written[1], "eval-003")
+
+
 def test_pictures_are_not_redrawn_and_the_search_is_only_read(search_dir, written, data_dir):
     out, _ = written
     before = {p: p.stat().st_mtime_ns for p in (out / "gallery").glob("*.gif")}

@@ -233,6 +233,13 @@ def _stage1(search_dir: Path, config: dict) -> Section:
         evaluation = _evaluation(1, index, dirs.get(index), kind, x, record)
         if record is not None:
             evaluation.feature = record["feature"]
+            measured = ((evaluation.result or {}).get("feature") or {}).get("up_angle")
+            if (record["feature"] is not None and measured is not None
+                    and not math.isclose(measured, record["feature"][0], abs_tol=1e-6)):
+                evaluation.notes.append(
+                    f"its result.json (up angle {math.degrees(measured):.1f}°) is not the "
+                    f"measurement the search logged ({math.degrees(record['feature'][0]):.1f}°, "
+                    "which groups it): the evaluation was trained and measured again")
         if budget is not None and index >= budget:
             evaluation.feature = None
             evaluation.notes.append(f"beyond the search's budget of {budget} evaluations: "

@@ -1,0 +1,48 @@
+"""A model of where the black box succeeds, to keep BDS's picks off regions that fail.
+
+A jump training from a bad take-off state learns nothing (thesis §3.3: "bad initial states will
+fail fast"), and such an evaluation returns no feature (`bds.search.Failure`). BDS's own
+acquisitions (thesis eqs. 3.7, 3.10) know nothing of this: the posterior variance and the expected
+distance to the features seen are both largest far from every observation, at the corners of the
+box, and that is where failures cluster (docs/discovery, docs/benchmarks.md). Following Bayesian
+optimisation with unknown constraints (Gardner et al., "Bayesian Optimization with Inequality
+Constraints", ICML 2014; Gelbart, Snoek & Adams, UAI 2014), success is treated as a constraint
+c(x) > 0 modelled by its own GP, and each acquisition a(x) is replaced by a(x) · P[c(x) > 0].
+
+The constraint's observations are the evaluations' outcomes as labels, c = +1 for a success and
+−1 for a failure, fitted by `bds.gp` like a feature (Matérn-5/2 ARD, hyperparameters by marginal
+likelihood) with prior mean 0 — nothing known is an even chance — and unit scale. Then
+P[c(x) > 0] = Φ(μ_c(x) / σ_c(x)), with σ_c the latent posterior standard deviation: near a
+success it tends to 1, near a failure to 0, and far from every evaluation to ½. GP regression on
+labels is the least-squares classifier of Rasmussen & Williams (2006, §6.5); it needs no
+approximate inference and reuses the feature GP's code.
+"""
+
+import jax.numpy as jnp
+from jax.scipy.stats import norm
+
+from bds import gp
+
+SUCCESS, FAILURE = 1.0, -1.0            # the constraint's observed values
+MIN_STD = 1e-6                          # keeps Φ(μ/σ) finite where σ_c vanishes
+
+
+def fit(x, succeeded, mask, key, restarts, steps):
+    """The constraint GP of padded evaluations x (capacity, d) in the unit box, `succeeded`
+    (capacity,) bool, real rows where `mask`."""
+    labels = jnp.where(jnp.asarray(succeeded), SUCCESS, FAILURE)[:, None]
+    return gp.fit(x, labels, mask, prior_mean=0.0, key=key, restarts=restarts, steps=steps,
+                  min_scale=1.0, isotropic=True)
+
+
+def success_probability(model: gp.Posterior, x):
+    """P[c(x) > 0] = Φ(μ_c / σ_c) at points x (n, d) of the unit box; (n,)."""
+    mean, variance = gp.predict(model, x)
+    return norm.cdf(mean[:, 0] / jnp.sqrt(variance[:, 0] + MIN_STD ** 2))
+
+
+def weighted(acquisition, model: gp.Posterior | None):
+    """x ↦ acquisition(x) · P[c(x) > 0]; the acquisition itself when there is no model."""
+    if model is None:
+        return acquisition
+    return lambda x: acquisition(x) * success_probability(model, x)
