@@ -7,7 +7,8 @@ distance to the features seen are both largest far from every observation, at th
 box, and that is where failures cluster (docs/discovery, docs/benchmarks.md). Following Bayesian
 optimisation with unknown constraints (Gardner et al., "Bayesian Optimization with Inequality
 Constraints", ICML 2014; Gelbart, Snoek & Adams, UAI 2014), success is treated as a constraint
-c(x) > 0 modelled by its own GP, and each acquisition a(x) is replaced by a(x) · P[c(x) > 0].
+c(x) > 0 modelled by its own GP, and each acquisition a(x) is replaced by a(x) · P[c(x) > 0]
+(maximised as its logarithm, `weighted`).
 
 The constraint's observations are the evaluations' outcomes as labels, c = +1 for a success and
 −1 for a failure, fitted by `bds.gp` like a feature (Matérn-5/2 ARD, hyperparameters by marginal
@@ -25,6 +26,7 @@ from bds import gp
 
 SUCCESS, FAILURE = 1.0, -1.0            # the constraint's observed values
 MIN_STD = 1e-6                          # keeps Φ(μ/σ) finite where σ_c vanishes
+TINY = 1e-30                            # an acquisition of 0, in the logarithm
 
 
 def fit(x, succeeded, mask, key, restarts, steps):
@@ -35,14 +37,26 @@ def fit(x, succeeded, mask, key, restarts, steps):
                   min_scale=1.0, isotropic=True)
 
 
+def log_success_probability(model: gp.Posterior, x):
+    """log P[c(x) > 0] = log Φ(μ_c / σ_c) at points x (n, d) of the unit box; (n,). Finite
+    where the probability itself underflows to 0."""
+    mean, variance = gp.predict(model, x)
+    return norm.logcdf(mean[:, 0] / jnp.sqrt(variance[:, 0] + MIN_STD ** 2))
+
+
 def success_probability(model: gp.Posterior, x):
     """P[c(x) > 0] = Φ(μ_c / σ_c) at points x (n, d) of the unit box; (n,)."""
-    mean, variance = gp.predict(model, x)
-    return norm.cdf(mean[:, 0] / jnp.sqrt(variance[:, 0] + MIN_STD ** 2))
+    return jnp.exp(log_success_probability(model, x))
 
 
 def weighted(acquisition, model: gp.Posterior | None):
-    """x ↦ acquisition(x) · P[c(x) > 0]; the acquisition itself when there is no model."""
+    """A function with the maximisers of acquisition(x) · P[c(x) > 0], the acquisition itself
+    when there is no model. With a model it is the logarithm, log a(x) + log P[c(x) > 0]: the
+    product underflows to a flat 0 over a region that fails, where L-BFGS gets no gradient and
+    DIRECT no ordering (and optax's L-BFGS once never returned on it, in the ballistic benchmark),
+    while the logarithm keeps pointing out of it. The acquisitions are ≥ 0; 0 is taken as
+    `TINY`."""
     if model is None:
         return acquisition
-    return lambda x: acquisition(x) * success_probability(model, x)
+    return lambda x: (jnp.log(jnp.maximum(acquisition(x), TINY))
+                      + log_success_probability(model, x))

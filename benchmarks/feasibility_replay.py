@@ -1,0 +1,66 @@
+"""Would the success model have kept the high-jump search off its failures? A replay.
+
+For each model-based pick of the committed high-jump search (docs/discovery/evaluations.jsonl,
+feasibility off), given the outcomes logged before it: the chance of success that BDS's success
+model (`bds.feasibility`, fitted exactly as `bds.search.plan_round` fits it for that pick) gives
+the point the search picked, and the point BDS with the success model picks instead, with its
+chance. Nothing is evaluated: the replay says where the search would have gone, not what it
+would have found.
+
+Run:  python benchmarks/feasibility_replay.py        (a markdown table; about a minute)
+"""
+
+import dataclasses
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from agents.tasks.takeoff_state import HIGHJUMP_BOUNDS
+from bds import feasibility, gp
+from bds.search import (CAPACITY_STEP, SearchSettings, _success_model, logged_evaluations,
+                        plan_round)
+
+DISCOVERY = Path(__file__).resolve().parent.parent / "docs" / "discovery"
+
+
+def replay(directory=DISCOVERY):
+    """Rows (index, kind, the pick made, its P, the pick with the model, its P)."""
+    stored = json.loads((directory / "config.json").read_text())["search"]
+    settings = SearchSettings(**{k: tuple(v) if isinstance(v, list) else v
+                                 for k, v in stored.items()})
+    settings = dataclasses.replace(settings, feasibility=True)
+    lower, upper = (np.array(b) for b in HIGHJUMP_BOUNDS)
+    records = logged_evaluations(directory / "evaluations.jsonl")
+    rows = []
+    for index in range(settings.initial, len(records) + 1):
+        done = records[:index]
+        unit = lambda rs: gp.to_unit(np.array([r["x"] for r in rs]).reshape(-1, 4), lower, upper)
+        good = [r for r in done if r["feature"] is not None]
+        failed = [r for r in done if r["feature"] is None]
+        x_unit, failed_unit = unit(good), unit(failed)
+        features = np.array([r["feature"] for r in good])
+        points, kinds = plan_round(settings, index, 1, x_unit, features, 4, failed_unit)
+        key = jax.random.fold_in(jax.random.PRNGKey(settings.seed), index)
+        model = _success_model(settings, x_unit, failed_unit, CAPACITY_STEP, key)
+        chance = lambda u: float(feasibility.success_probability(model, np.asarray(u)[None])[0])
+        made = records[index]["x"] if index < len(records) else None
+        rows.append((index, kinds[0], made,
+                     None if made is None else chance(gp.to_unit(np.array(made), lower, upper)),
+                     gp.from_unit(np.asarray(points[0]), lower, upper), chance(points[0])))
+    return rows
+
+
+def main():
+    point = lambda x: "(" + ", ".join(f"{v:.2f}" for v in x) + ")"
+    print("| pick | kind | the search's pick x = (α, ω_x, ω_z, v_z) | P[success] "
+          "| with the success model | P[success] |")
+    print("|---:|---|---|---:|---|---:|")
+    for index, kind, made, made_p, pick, pick_p in replay():
+        made_text = "(next) | —" if made is None else f"{point(made)} | {made_p:.2f}"
+        print(f"| {index:03d} | {kind} | {made_text} | {point(pick)} | {pick_p:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
