@@ -11,8 +11,11 @@ c(x) > 0 modelled by its own GP, and each acquisition a(x) is replaced by a(x) �
 (maximised as its logarithm, `weighted`).
 
 The constraint's observations are the evaluations' outcomes as labels, c = +1 for a success and
-−1 for a failure, fitted by `bds.gp` like a feature (Matérn-5/2 ARD, hyperparameters by marginal
-likelihood) with prior mean 0 — nothing known is an even chance — and unit scale. Then
+−1 for a failure, fitted by `bds.gp` like a feature (Matérn-5/2, hyperparameters by marginal
+likelihood) with prior mean 0 — nothing known is an even chance — and unit scale, but with one
+lengthscale for every dimension: a handful of binary outcomes cannot tell the dimensions apart
+(fitted per dimension to the high-jump search's first four outcomes, the model put all its
+weight on ω_z and gave the next pick, which failed, P = 1.00). Then
 P[c(x) > 0] = Φ(μ_c(x) / σ_c(x)), with σ_c the latent posterior standard deviation: near a
 success it tends to 1, near a failure to 0, and far from every evaluation to ½. GP regression on
 labels is the least-squares classifier of Rasmussen & Williams (2006, §6.5); it needs no
