@@ -401,9 +401,10 @@ def ballistic(args):
         lines += ["", "with the success model, per bin width (distinct strategies, ratio to "
                   "the same method without it):"]
         for w in args.widths:
+            mean = lambda method, c: table[str(w)][method][str(c)][0]
             lines.append(f"  {w:g}°: " + "; ".join(
-                f"{m} @{c} {table[str(w)][m][str(c)][0]:.2f} "
-                f"({table[str(w)][m][str(c)][0] / table[str(w)][m.removesuffix('-feasible')][str(c)][0]:.2f}×)"
+                f"{m} @{c} {mean(m, c):.2f} "
+                f"({mean(m, c) / mean(m.removesuffix('-feasible'), c):.2f}×)"
                 for m in FEASIBLE_METHODS for c in args.checkpoints))
     failures = {m: float(np.mean([r["failures"] for r in rows if r["method"] == m]))
                 for m in methods}
