@@ -239,17 +239,30 @@ def _pick(settings, kind, posterior, success_model, observed_f, observed_mask, d
                   max_evaluations=settings.direct_evaluations).x
 
 
-def _success_model(settings, x_unit, failed_unit, capacity, key):
-    """The constraint GP of `bds.feasibility` over the successes x_unit and the failures
-    failed_unit, when `settings.feasibility` asks for it and there is a failure to learn from
-    (with none, every pick is taken to succeed); else None."""
+def _capacity(observations):
+    """The padded size of a round's observation arrays."""
+    return CAPACITY_STEP * math.ceil(observations / CAPACITY_STEP)
+
+
+def _round_key(settings, first_index):
+    """The random stream of the round whose first pick is `first_index`."""
+    return jax.random.fold_in(jax.random.PRNGKey(settings.seed), first_index)
+
+
+def success_model(settings, first_index, x_unit, failed_unit, count=1):
+    """The constraint GP of `bds.feasibility` that `plan_round` weights the picks of the round
+    (first_index, `count` picks) by, over the successes x_unit and the failures failed_unit;
+    None when `settings.feasibility` is off or nothing has failed yet (every pick is then taken
+    to succeed)."""
     if not (settings.feasibility and len(failed_unit)):
         return None
     x = np.concatenate([x_unit, failed_unit])
-    succeeded = np.arange(capacity) < len(x_unit)
-    return feasibility.fit(_padded(x, capacity), succeeded, np.arange(capacity) < len(x),
-                           jax.random.fold_in(key, SUCCESS_MODEL_KEY), settings.gp_restarts,
-                           settings.gp_steps)
+    capacity = _capacity(len(x) + count)
+    return feasibility.fit(_padded(x, capacity), np.arange(capacity) < len(x_unit),
+                           np.arange(capacity) < len(x),
+                           jax.random.fold_in(_round_key(settings, first_index),
+                                              SUCCESS_MODEL_KEY),
+                           settings.gp_restarts, settings.gp_steps)
 
 
 def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=None):
@@ -263,14 +276,14 @@ def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=
         return [_random_point(settings, first_index + j, dim) for j in range(count)], kinds
     failed_unit = np.zeros((0, dim)) if failed_unit is None else np.asarray(failed_unit)
     n = len(x_unit)
-    capacity = CAPACITY_STEP * math.ceil((n + len(failed_unit) + count) / CAPACITY_STEP)
+    capacity = _capacity(n + len(failed_unit) + count)
     mask = np.arange(capacity) < n
     xs, fs = _padded(x_unit, capacity), _padded(features, capacity)
-    key = jax.random.fold_in(jax.random.PRNGKey(settings.seed), first_index)
+    key = _round_key(settings, first_index)
     prior_mean, min_scale = settings.feature_prior(fs.shape[1])
     posterior = gp.fit(xs, fs, mask, prior_mean=prior_mean, key=key,
                        restarts=settings.gp_restarts, steps=settings.gp_steps, min_scale=min_scale)
-    success_model = _success_model(settings, x_unit, failed_unit, capacity, key)
+    model = success_model(settings, first_index, x_unit, failed_unit, count)
     visited = n
 
     def believe(point):
@@ -294,7 +307,7 @@ def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=
             # The diversity acquisition compares against the real features and, in a batched
             # round, the pending points' believed ones — never a failure's.
             pending = mask & (np.arange(capacity) >= n + len(failed_unit))
-            point = _pick(settings, kind, posterior, success_model, jnp.asarray(fs),
+            point = _pick(settings, kind, posterior, model, jnp.asarray(fs),
                           jnp.asarray(real | pending), dim, jax.random.fold_in(key, index))
         picks.append(point)
         if j + 1 < count:                         # fantasise the pending point's outcome

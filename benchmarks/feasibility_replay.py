@@ -14,13 +14,11 @@ import dataclasses
 import json
 from pathlib import Path
 
-import jax
 import numpy as np
 
 from agents.tasks.takeoff_state import HIGHJUMP_BOUNDS
 from bds import feasibility, gp
-from bds.search import (CAPACITY_STEP, SearchSettings, _success_model, logged_evaluations,
-                        plan_round)
+from bds.search import SearchSettings, logged_evaluations, plan_round, success_model
 
 DISCOVERY = Path(__file__).resolve().parent.parent / "docs" / "discovery"
 
@@ -42,8 +40,7 @@ def replay(directory=DISCOVERY):
         x_unit, failed_unit = unit(good), unit(failed)
         features = np.array([r["feature"] for r in good])
         points, kinds = plan_round(settings, index, 1, x_unit, features, 4, failed_unit)
-        key = jax.random.fold_in(jax.random.PRNGKey(settings.seed), index)
-        model = _success_model(settings, x_unit, failed_unit, CAPACITY_STEP, key)
+        model = success_model(settings, index, x_unit, failed_unit)
         chance = lambda u: float(feasibility.success_probability(model, np.asarray(u)[None])[0])
         made = records[index]["x"] if index < len(records) else None
         rows.append((index, kinds[0], made,

@@ -530,9 +530,7 @@ def _make(settings, data_dir):
 
 
 VMAPPABLE = ("gravity", "takeoff", "vertical_velocity")   # settings that are task parameters
-registry.register(registry.Task("highjump", HighJumpSettings, _make,
-                                fixed_on_resume=("character", "actions", "pvae"),
-                                takes_physics=True, vmappable=VMAPPABLE))
-registry.register(registry.Task("obstacle", ObstacleSettings, _make,
-                                fixed_on_resume=("character", "actions", "pvae"),
-                                takes_physics=True, vmappable=VMAPPABLE))
+for _kind, _settings in (("highjump", HighJumpSettings), ("obstacle", ObstacleSettings)):
+    registry.register(registry.Task(_kind, _settings, _make,
+                                    fixed_on_resume=("character", "actions", "pvae"),
+                                    takes_physics=True, vmappable=VMAPPABLE))
