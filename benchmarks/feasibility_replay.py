@@ -7,11 +7,16 @@ the point the search picked, and the point BDS with the success model picks inst
 chance. Nothing is evaluated: the replay says where the search would have gone, not what it
 would have found.
 
-Run:  python benchmarks/feasibility_replay.py        (a markdown table; about a minute)
+Run:  python benchmarks/feasibility_replay.py [SEARCH_DIR]   (a markdown table; about a minute)
+
+SEARCH_DIR (default docs/discovery) is any high-jump search's directory: on a search made with
+the success model on, the two pick columns agree, which checks that the replay fits the model
+as the search did.
 """
 
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +59,8 @@ def main():
     print("| pick | kind | the search's pick x = (α, ω_x, ω_z, v_z) | P[success] "
           "| with the success model | P[success] |")
     print("|---:|---|---|---:|---|---:|")
-    for index, kind, made, made_p, pick, pick_p in replay():
+    directory = Path(sys.argv[1]) if len(sys.argv) > 1 else DISCOVERY
+    for index, kind, made, made_p, pick, pick_p in replay(directory):
         made_text = "(next) | —" if made is None else f"{point(made)} | {made_p:.2f}"
         print(f"| {index:03d} | {kind} | {made_text} | {point(pick)} | {pick_p:.2f} |")
 
