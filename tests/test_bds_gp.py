@@ -105,7 +105,7 @@ def test_success_probability_is_phi_of_mean_over_std_and_follows_the_outcomes():
     assert float(probability[1]) > 0.8 and float(probability[2]) < 0.2
     acquisition_value = lambda z: jnp.sum(z, axis=1)
     np.testing.assert_allclose(jnp.exp(feasibility.weighted(acquisition_value, model)(points)),
-                               jnp.sum(points, axis=1) * probability, rtol=1e-5)
+                               jnp.sum(points, axis=1) * probability, rtol=1e-12)
     assert feasibility.weighted(acquisition_value, None) is acquisition_value
 
 

@@ -134,9 +134,9 @@ def stage2_sections(stage1_run, known, iterations) -> dict:
     """The config (nested dicts) of a Stage-2 round from the Stage-1 run in `stage1_run`: its
     settings (task, take-off state, networks, PPO), `iterations` iterations with no stop
     difficulty or time limit, and a [novelty] section warm-starting from it, novel against the
-    rotation vectors `known`. The warm start is named as `stage1_run` was (relative to the working
-    directory when the search directory was given so, like the config's P-VAE), so the written
-    config does not tie the round to this machine's absolute paths."""
+    rotation vectors `known`. The warm start is written as `stage1_run` is given (a relative
+    path stays relative to the working directory, as the config's P-VAE path is), not resolved
+    to this machine's absolute path."""
     sections = config_io.read_stored(Path(stage1_run) / train_commands.CONFIG)
     sections["run"].update(iterations=iterations, stop_difficulty=0.0, time_limit_minutes=0.0)
     sections["novelty"] = {"warm_start": str(Path(stage1_run)),
