@@ -18,7 +18,7 @@ from bds.search import Failure, logged_evaluations
 from conftest import tiny_highjump_training
 
 
-def _search_config(tmp_path, samples):
+def _search_config(tmp_path, samples, give_up_samples=0):
     train = tmp_path / "train.toml"
     train.write_text(tiny_highjump_training(iterations=1000))
     config = tmp_path / "search.toml"
@@ -32,6 +32,7 @@ feature_high = [3.14159]
 [jump]
 train = "{train}"
 samples = {samples}
+give_up_samples = {give_up_samples}
 episodes = 2
 """)
     return config
@@ -44,9 +45,10 @@ def _metrics(run_dir):
 def test_a_search_killed_mid_training_resumes_it_and_records_the_failure(tmp_path, data_dir):
     """`takeoff search` is killed (SIGKILL) while its first evaluation trains; run again, the
     training goes on from its checkpoint (the iterations logged before the kill are kept, none
-    is repeated), the evaluation ends as a recorded failure with its files, and a third run
+    is repeated), is given up after 12 of its 24 iterations (no episode of the tiny training
+    can succeed), the evaluation ends as a recorded failure with its files, and a third run
     trains and evaluates nothing."""
-    config = _search_config(tmp_path, samples=16 * 12)           # 12 iterations
+    config = _search_config(tmp_path, samples=16 * 24, give_up_samples=16 * 12)
     out = tmp_path / "search"
     train_dir = jump_black_box.evaluation_dir(out, 0) / jump_black_box.TRAIN
     # the resumed search, like the killed one, in float32 and in its own process: it finds the
@@ -80,10 +82,11 @@ def test_a_search_killed_mid_training_resumes_it_and_records_the_failure(tmp_pat
     assert after[:checkpointed] == before          # kept as they were, not trained again
     [record] = logged_evaluations(out / "evaluations.jsonl")
     assert record["feature"] is None and "cleared 0 of 2 episodes at 0.50 m" in record["failure"]
+    assert "given up" in record["failure"]
     assert "0 distinct strategies in 1 evaluations, 1 failed" in resumed.stdout, resumed.stdout
     directory = jump_black_box.evaluation_dir(out, 0)
     stored = json.loads((directory / jump_black_box.RESULT).read_text())
-    assert stored["outcome"] == "failure" and stored["samples"] == 16 * 12
+    assert stored["outcome"] == "failure" and stored["samples"] == 16 * 12 and stored["gave_up"]
     np.testing.assert_allclose(stored["x"], record["x"])
     episode = np.load(directory / jump_black_box.EPISODE)
     assert episode["poses"].shape[0] >= 1 and (directory / jump_black_box.PEAK).stat().st_size
@@ -93,6 +96,27 @@ def test_a_search_killed_mid_training_resumes_it_and_records_the_failure(tmp_pat
     assert result.failures == [record["failure"]] and np.isnan(result.features).all()
     assert (out / "evaluations.jsonl").read_text() == log_text
     assert _metrics(train_dir) == after
+
+
+@pytest.mark.parametrize("success, gives_up", [(0.01, True), (0.02, False)])
+def test_a_training_is_given_up_by_its_record_at_the_give_up_point(tmp_path, success, gives_up):
+    """The give-up rule reads the record at the first leg's end, not the last one: a search
+    killed in the second leg does not give up a training that has since fallen back."""
+    settings = jump_black_box.JumpBlackBoxSettings(give_up_samples=400, give_up_success=0.01)
+    box = jump_black_box.JumpBlackBox(settings, tmp_path)
+    run_dir = tmp_path / "train"
+    run_dir.mkdir()
+    records = [{"iteration": i, "samples": 100 * i, "seconds": 1.0 * i, "env/episode/success": s}
+               for i, s in ((3, 0.0), (4, success), (5, 0.0))]
+    (run_dir / trainer_lib.METRICS).write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert box._going_nowhere(run_dir, iterations=4) == gives_up
+
+
+def test_the_give_up_settings_are_checked():
+    with pytest.raises(ValueError, match="give_up_success"):
+        jump_black_box.JumpBlackBoxSettings(give_up_success=1.0)
+    with pytest.raises(ValueError, match="give_up_samples"):
+        jump_black_box.JumpBlackBoxSettings(give_up_samples=-1)
 
 
 def _template(train_dir, data_dir):

@@ -5,9 +5,12 @@ One evaluation, in its own directory `<search>/evaluations/NNN/` (NNN its index 
 
 1. Train (`takeoff train` with the config `[jump].train`, its task's `takeoff` set to x) with the
    curriculum from z_min until the bar reaches z_freeze, or the budget (`samples`, and `minutes`
-   of training when given) is spent, whichever comes first. The run directory is `train/`; an
-   evaluation killed mid-training resumes from its last checkpoint (the budget counts the
-   training minutes its metrics log already holds).
+   of training when given) is spent, whichever comes first. A training that is going nowhere
+   stops early (`give_up_samples`): when, after that many samples, at most `give_up_success` of
+   its last iteration's episodes succeeded ("bad initial states will fail fast", §3.4.1); it is
+   then measured like any other and, clearing nothing, is a failure. The run directory is
+   `train/`; an evaluation killed mid-training resumes from its last checkpoint (the budget
+   counts the training minutes its metrics log already holds).
 2. Measure: the deterministic policy's episodes at the height the training reached; if most of
    them fail there, at z_min. The evaluation succeeds when most episodes clear the bar at one of
    the two; its feature is then the mean, over the clearing episodes, of `up_angle` (the angle
@@ -47,11 +50,17 @@ class JumpBlackBoxSettings:
     samples: int = 2_000_000                # training budget per evaluation (samples)
     minutes: float = 0.0                    # and (when > 0) training minutes
     z_freeze: float = 0.0                   # where training stops; 0: the task's own z_freeze
+    give_up_samples: int = 0                # stop a training going nowhere here (0: never) …
+    give_up_success: float = 0.01           # … when at most this share of its episodes succeed
     episodes: int = 4                       # deterministic evaluation episodes
 
     def __post_init__(self):
         if self.samples < 1:
             raise ValueError(f"samples must be at least 1; got {self.samples}")
+        if self.give_up_samples < 0:
+            raise ValueError(f"give_up_samples must be ≥ 0; got {self.give_up_samples}")
+        if not 0 <= self.give_up_success < 1:
+            raise ValueError(f"give_up_success must be in [0, 1); got {self.give_up_success}")
         if self.episodes < 1:
             raise ValueError(f"episodes must be at least 1; got {self.episodes}")
         for name in ("minutes", "z_freeze"):
@@ -91,13 +100,10 @@ class JumpBlackBox:
     search_dir: Path
     data_dir: Path | None = None
 
-    def _overrides(self, x, train_commands):
-        """The training config's overrides for the evaluation at x."""
-        base = train_commands.load_config(self.settings.train, self.settings.set)
-        kind = base.run.task
+    def _overrides(self, x, base, iterations):
+        """The training config's overrides for the evaluation at x, trained for `iterations`."""
         z_freeze = self.settings.z_freeze or base.task.z_freeze
-        iterations = math.ceil(self.settings.samples / base.run.samples_per_iteration)
-        return [*self.settings.set, f"{kind}.takeoff={[float(v) for v in x]}",
+        return [*self.settings.set, f"{base.run.task}.takeoff={[float(v) for v in x]}",
                 f"run.stop_difficulty={z_freeze}", f"run.iterations={iterations}",
                 f"run.time_limit_minutes={self.settings.minutes}"]
 
@@ -111,37 +117,59 @@ class JumpBlackBox:
                                   f"{done['x']}, but this search's evaluation {index} is at "
                                   f"x = {x.tolist()}; the directory belongs to another search")
             return outcome(done)
-        self._train(directory / TRAIN, x)
-        return outcome(self._measure(directory, index, x))
+        gave_up = self._train(directory / TRAIN, x)
+        return outcome(self._measure(directory, index, x, gave_up))
 
-    def _train(self, run_dir: Path, x):
+    def _train(self, run_dir: Path, x) -> bool:
+        """Train in up to two legs: to `give_up_samples`, and on to `samples` unless the first
+        leg's training is going nowhere (see the module docstring). Returns whether it gave up."""
         from agents.commands import train_commands
         from agents.rl import trainer as trainer_lib
-        minutes = self.settings.minutes
-        minutes_left = lambda last: minutes - last.get("seconds", 0.0) / 60
+        settings = self.settings
+        base = train_commands.load_config(settings.train, settings.set)
+        iterations = lambda samples: math.ceil(samples / base.run.samples_per_iteration)
+        legs = [iterations(settings.samples)]
+        if 0 < settings.give_up_samples < settings.samples:
+            legs.insert(0, iterations(settings.give_up_samples))
+        minutes_left = lambda last: settings.minutes - last.get("seconds", 0.0) / 60
+        echo = _prefixed(f"  [g {run_dir.parent.name}] ")
+        for leg, leg_iterations in enumerate(legs):
+            def finished(config, last):
+                if not np.allclose(config.sections()[config.run.task]["takeoff"], x, atol=1e-6):
+                    raise SearchError(f"{run_dir} trains from another take-off state than x = "
+                                      f"{x.tolist()}; the directory belongs to another search")
+                return (last.get("iteration", 0) >= leg_iterations
+                        or last.get(trainer_lib.DIFFICULTY, -1) >= config.run.stop_difficulty
+                        - DIFFICULTY_TOLERANCE
+                        or (settings.minutes and minutes_left(last) <= 0))
 
-        def finished(config, last):
-            if not np.allclose(config.sections()[config.run.task]["takeoff"], x, atol=1e-6):
-                raise SearchError(f"{run_dir} trains from another take-off state than x = "
-                                  f"{x.tolist()}; the directory belongs to another search")
-            return (last.get("iteration", 0) >= config.run.iterations
-                    or last.get(trainer_lib.DIFFICULTY, -1) >= config.run.stop_difficulty
-                    - DIFFICULTY_TOLERANCE
-                    or (minutes and minutes_left(last) <= 0))
+            def resume_overrides(config, last):  # this leg's end, the time budget left
+                limit = max(minutes_left(last), 1e-3) if settings.minutes else 0.0
+                return [f"run.iterations={leg_iterations}", f"run.time_limit_minutes={limit}"]
 
-        def resume_overrides(config, last):     # the time budget left (the kill's is spent)
-            limit = max(minutes_left(last), 1e-3) if minutes else 0.0
-            return [f"run.time_limit_minutes={limit}"]
+            train_commands.train_or_resume(settings.train, run_dir,
+                                           self._overrides(x, base, leg_iterations),
+                                           self.data_dir, echo, finished, resume_overrides)
+            if leg + 1 < len(legs) and self._going_nowhere(run_dir, leg_iterations):
+                echo(f"gave up after {settings.give_up_samples:,} samples: at most "
+                     f"{settings.give_up_success:.0%} of the episodes succeed")
+                return True
+        return False
 
-        train_commands.train_or_resume(
-            self.settings.train, run_dir, self._overrides(x, train_commands), self.data_dir,
-            _prefixed(f"  [g {run_dir.parent.name}] "), finished, resume_overrides)
+    def _going_nowhere(self, run_dir, iterations: int) -> bool:
+        """Whether the training in run_dir is to be given up at the end of its first leg of
+        `iterations` (judged by that iteration's record, also when a killed search finds the
+        training past it)."""
+        from agents.rl import trainer as trainer_lib
+        records = trainer_lib.read_metrics(run_dir)
+        at = next((r for r in records if r["iteration"] >= iterations), records[-1])
+        return at.get("env/episode/success", 0.0) <= self.settings.give_up_success
 
-    def _measure(self, directory: Path, index: int, x) -> dict:
+    def _measure(self, directory: Path, index: int, x, gave_up: bool) -> dict:
         """Evaluate the trained policy (see the module docstring), keep its files, return its
         result."""
         return measure(directory, directory / TRAIN, self.settings.episodes, self.data_dir,
-                       index=index, x=x.tolist())
+                       index=index, x=x.tolist(), gave_up=gave_up)
 
 
 def measure(directory: Path, run_dir: Path, episodes: int, data_dir=None, **fields) -> dict:
@@ -177,7 +205,8 @@ def measure(directory: Path, run_dir: Path, episodes: int, data_dir=None, **fiel
         result.update(outcome="failure", highest_cleared=None, feature=None, reason=(
             f"the deterministic policy cleared {int(cleared.sum())} of {cleared.size} "
             f"episodes at {height:.2f} m after {result['samples']:,} training samples "
-            f"({result['minutes']:.0f} min); in its last training iteration "
+            f"({result['minutes']:.0f} min{', given up' if fields.get('gave_up') else ''}); "
+            f"in its last training iteration "
             f"{100 * (result['training_success'] or 0):.0f}% of the episodes succeeded"))
     _keep_episode(directory, measured, height)
     write_text_atomic(directory / RESULT, json.dumps(result, indent=2) + "\n")

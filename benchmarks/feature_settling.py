@@ -1,0 +1,129 @@
+"""Has the Stage-1 feature settled before z_freeze? Training a search's evaluations on, bar by bar.
+
+The thesis stops each evaluation's training at z_freeze = 1.0 m "since the overall jumping
+strategy usually remains unchanged after a given level of difficulty" (§3.6.1); a lower z_freeze
+must be justified by showing the feature has settled there. This script takes finished
+evaluations of a high-jump search, copies each one's training (`evaluations/NNN/train`) to
+OUT/NNN/train, resumes it with the curriculum until the bar reaches each height of `--bars` in
+turn, and at each height measures the deterministic policy exactly as the search's black box
+does (`agents.discovery.jump_black_box.measure`: its episodes at the bar reached, result.json,
+episode.npz, peak.png in OUT/NNN/bar_H.HH/). The search's own files are not touched.
+
+Run:  python benchmarks/feature_settling.py SEARCH_DIR EVALUATION... [--bars 0.6 0.7 0.8 0.9 1.0]
+          [--out runs/settling] [--data-dir ../shared/data] [--episodes 4]
+      python benchmarks/feature_settling.py --table runs/settling    (the markdown table only)
+
+Killed, it is run again with the same arguments: a height already measured is not measured
+again, and a training goes on from its last checkpoint. Run it alone on the machine: it is a
+training.
+"""
+
+import argparse
+import math
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from agents.discovery.jump_black_box import (DIFFICULTY_TOLERANCE, RESULT, TRAIN,
+                                             evaluation_dir, measure, read_result)
+from bds.acquisition import rotation_geodesic
+
+
+def bar_dir(out: Path, index: int, bar: float) -> Path:
+    return out / f"{index:03d}" / f"bar_{bar:.2f}"
+
+
+def settle(search_dir: Path, index: int, bars, out: Path, data_dir, episodes: int):
+    """Train evaluation `index` of the search on to each of `bars` and measure it there."""
+    from agents.commands import train_commands
+    from agents.rl import trainer as trainer_lib
+    source = evaluation_dir(search_dir, index)
+    first = read_result(source)
+    if first is None or first["outcome"] != "success":
+        raise SystemExit(f"{source}: not a successful evaluation (nothing to train on)")
+    run_dir = out / f"{index:03d}" / TRAIN
+    if not (run_dir / trainer_lib.CHECKPOINT).exists():
+        shutil.copytree(source / TRAIN, run_dir, dirs_exist_ok=True)
+    for bar in bars:
+        if read_result(bar_dir(out, index, bar)) is not None:
+            continue
+        reached = lambda config, last: (last.get(trainer_lib.DIFFICULTY, -1)
+                                        >= bar - DIFFICULTY_TOLERANCE)
+        overrides = lambda config, last: [f"run.stop_difficulty={bar}", "run.iterations=1000000",
+                                          "run.time_limit_minutes=0"]
+        echo = lambda text="": print(f"  [{index:03d} → {bar:.2f} m] {text}")
+        train_commands.train_or_resume(None, run_dir, (), data_dir, echo, reached, overrides)
+        result = measure(bar_dir(out, index, bar), run_dir, episodes, data_dir,
+                         index=index, x=first["x"], bar=bar)
+        print(f"{index:03d} at {result['evaluated_at']:.2f} m: {result['outcome']}, up angle "
+              f"{_degrees(result)}, {result['samples']:,} samples, "
+              f"{result['minutes']:.0f} training minutes", flush=True)
+
+
+def _degrees(result) -> str:
+    if result["outcome"] != "success":
+        return "—"
+    return f"{math.degrees(result['feature']['up_angle']):.0f}°"
+
+
+def _rotation_distance(feature, other) -> float:
+    """The geodesic angle between two features' 3-D root orientations at the crossing."""
+    f, g = (np.asarray(r["cross_rotvec"], np.float32) for r in (feature, other))
+    return float(rotation_geodesic(f, g[None])[0])
+
+
+def table(search_dir: Path | None, out: Path) -> str:
+    """A markdown table: per evaluation and height, the up angle, the 3-D orientation's change
+    from the height before, the training's samples and minutes."""
+    lines = ["| evaluation | bar | outcome | up angle | orientation moved since the row above "
+             "| peak CoM | samples | training minutes |",
+             "|---:|---:|---|---:|---:|---:|---:|---:|"]
+    for evaluation in sorted(p for p in out.iterdir() if p.is_dir()):
+        rows = []
+        if search_dir is not None:
+            rows.append(("search", read_result(evaluation_dir(search_dir, int(evaluation.name)))))
+        rows += [(p.name[4:], read_result(p)) for p in sorted(evaluation.glob("bar_*"))
+                 if (p / RESULT).exists()]
+        previous = None
+        for label, result in rows:
+            if result is None:
+                continue
+            feature = result.get("feature")
+            moved = peak = "—"
+            if feature:
+                peak = f"{feature['peak_com']:.2f} m"
+                if previous:
+                    moved = f"{math.degrees(_rotation_distance(feature, previous)):.0f}°"
+                previous = feature
+            lines.append(f"| {evaluation.name} | {result['evaluated_at']:.2f} m ({label}) | "
+                         f"{result['outcome']} | {_degrees(result)} | {moved} | {peak} | "
+                         f"{result['samples']:,} | {result['minutes']:.0f} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("search_dir", nargs="?", type=Path)
+    parser.add_argument("evaluations", nargs="*", type=int)
+    parser.add_argument("--bars", nargs="+", type=float, default=[0.6, 0.7, 0.8, 0.9, 1.0])
+    parser.add_argument("--out", type=Path, default=Path("runs/settling"))
+    parser.add_argument("--data-dir", type=Path)
+    parser.add_argument("--episodes", type=int, default=4)
+    parser.add_argument("--table", type=Path, help="only print the table of this OUT directory")
+    args = parser.parse_args(argv)
+    if args.table is not None:
+        print(table(args.search_dir, args.table))
+        return
+    if args.search_dir is None or not args.evaluations:
+        parser.error("give the search directory and at least one evaluation index")
+    if sorted(args.bars) != args.bars:
+        parser.error(f"--bars must rise; got {args.bars}")
+    for index in args.evaluations:
+        settle(args.search_dir, index, args.bars, args.out, args.data_dir, args.episodes)
+    print(table(args.search_dir, args.out))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
