@@ -12,8 +12,9 @@ one training of a new policy π_{n+1} against the set Π of the policies found s
 and give it a third of a Stage-1 evaluation's budget. Hence the defaults:
     --rounds      5 rounds per Stage-1 strategy;
     --iterations  ⌈jump.samples / 3 / samples per iteration⌉ PPO iterations per round
-                  (jump.samples: the search's training budget of one evaluation): 163 for
-                  configs/highjump_bds.toml's 2,000,000 samples at 4,096 per iteration.
+                  (jump.samples: the search's training budget of one evaluation): 977 for
+                  configs/highjump_bds.toml's 12,000,000 samples at 4,096 per iteration
+                  (163 for the 2,000,000 of the first two searches in docs/discovery).
 With them Stage 2 costs what the thesis's did relative to Stage 1: six strategies × 5 rounds ×
 a third of an evaluation = the ten evaluations of the search.
 
