@@ -11,7 +11,10 @@ episode.npz, peak.png in OUT/NNN/bar_H.HH/). The search's own files are not touc
 
 Run:  python benchmarks/feature_settling.py SEARCH_DIR EVALUATION... [--bars 0.6 0.7 0.8 0.9 1.0]
           [--out runs/settling] [--data-dir ../shared/data] [--episodes 4]
-      python benchmarks/feature_settling.py --table runs/settling    (the markdown table only)
+      python benchmarks/feature_settling.py SEARCH_DIR --table runs/settling   (the table only)
+      python benchmarks/feature_settling.py SEARCH_DIR --filmstrips PNG --table runs/settling
+          [--bars 0.7 1.0]    (each evaluation's episode in the search and at those heights,
+                               one filmstrip a row, seen along the bar)
 
 Killed, it is run again with the same arguments: a height already measured is not measured
 again, and a training goes on from its last checkpoint. Run it alone on the machine: it is a
@@ -26,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.discovery.jump_black_box import (DIFFICULTY_TOLERANCE, RESULT, TRAIN,
+from agents.discovery.jump_black_box import (DIFFICULTY_TOLERANCE, EPISODE, RESULT, TRAIN,
                                              evaluation_dir, measure, read_result)
 from bds.acquisition import rotation_geodesic
 
@@ -103,6 +106,43 @@ def table(search_dir: Path | None, out: Path) -> str:
     return "\n".join(lines)
 
 
+def filmstrips(search_dir: Path, out: Path, bars, path: Path, frames: int = 12):
+    """One PNG: a row per episode (each evaluation in OUT as the search measured it, then at
+    each of `bars`), the frames of its GIF side by side."""
+    import tempfile
+    import jax.numpy as jnp
+    from PIL import Image, ImageDraw, ImageSequence
+    from agents.discovery import pictures
+    from agents.discovery.gallery import drawing_env
+    rows = []
+    for evaluation in sorted(p for p in out.iterdir() if p.is_dir()):
+        index = int(evaluation.name)
+        episodes = [(f"{index:03d} in the search", evaluation_dir(search_dir, index))]
+        episodes += [(f"{index:03d} at {bar:.2f} m", bar_dir(out, index, bar)) for bar in bars]
+        env = drawing_env(evaluation / TRAIN)
+        for label, directory in episodes:
+            with np.load(directory / EPISODE) as data:
+                poses, control_dt = np.asarray(data["poses"]), float(data["control_dt"])
+                task = {name: jnp.asarray(data[key], env.q0.dtype)
+                        for name, key in (("takeoff", "takeoff"), ("difficulty", "difficulty"))}
+            with tempfile.TemporaryDirectory() as scratch:
+                gif = Path(scratch) / "episode.gif"
+                pictures.episode_animation(env, poses, task, gif, control_dt, frames, size=1.6)
+                images = [f.convert("RGB") for f in ImageSequence.Iterator(Image.open(gif))]
+            width, height = images[0].size
+            row = Image.new("RGB", (width * len(images), height + 14), "white")
+            for k, image in enumerate(images):
+                row.paste(image, (k * width, 14))
+            ImageDraw.Draw(row).text((2, 1), label, fill="black")
+            rows.append(row)
+    sheet = Image.new("RGB", (max(r.width for r in rows), sum(r.height for r in rows)), "white")
+    top = 0
+    for row in rows:
+        sheet.paste(row, (0, top))
+        top += row.height
+    sheet.convert("P", palette=Image.ADAPTIVE, colors=32).save(path, optimize=True)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("search_dir", nargs="?", type=Path)
@@ -112,8 +152,11 @@ def main(argv=None):
     parser.add_argument("--data-dir", type=Path)
     parser.add_argument("--episodes", type=int, default=4)
     parser.add_argument("--table", type=Path, help="only print the table of this OUT directory")
+    parser.add_argument("--filmstrips", type=Path, help="with --table: write the filmstrips here")
     args = parser.parse_args(argv)
     if args.table is not None:
+        if args.filmstrips is not None:
+            filmstrips(args.search_dir, args.table, args.bars, args.filmstrips)
         print(table(args.search_dir, args.table))
         return
     if args.search_dir is None or not args.evaluations:
