@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.discovery.jump_black_box import (DIFFICULTY_TOLERANCE, EPISODE, RESULT, TRAIN,
-                                             evaluation_dir, measure, read_result)
+from agents.discovery.jump_black_box import (DIFFICULTY_TOLERANCE, RESULT, TRAIN, evaluation_dir,
+                                             measure, read_episode, read_result)
 from bds.acquisition import rotation_geodesic
 
 
@@ -106,35 +106,31 @@ def table(search_dir: Path | None, out: Path) -> str:
     return "\n".join(lines)
 
 
-def filmstrips(search_dir: Path, out: Path, bars, path: Path, frames: int = 12):
+def filmstrips(search_dir: Path, out: Path, bars, path: Path, panels: int = 10):
     """One PNG: a row per episode (each evaluation in OUT as the search measured it, then at
-    each of `bars`), the frames of its GIF side by side."""
+    each of `bars`), `panels` poses of it seen along the bar (`jaxsim.render.filmstrip`)."""
     import tempfile
-    import jax.numpy as jnp
-    from PIL import Image, ImageDraw, ImageSequence
+    from PIL import Image
     from agents.discovery import pictures
     from agents.discovery.gallery import drawing_env
+    from jaxsim import render
     rows = []
-    for evaluation in sorted(p for p in out.iterdir() if p.is_dir()):
-        index = int(evaluation.name)
-        episodes = [(f"{index:03d} in the search", evaluation_dir(search_dir, index))]
-        episodes += [(f"{index:03d} at {bar:.2f} m", bar_dir(out, index, bar)) for bar in bars]
-        env = drawing_env(evaluation / TRAIN)
-        for label, directory in episodes:
-            with np.load(directory / EPISODE) as data:
-                poses, control_dt = np.asarray(data["poses"]), float(data["control_dt"])
-                task = {name: jnp.asarray(data[key], env.q0.dtype)
-                        for name, key in (("takeoff", "takeoff"), ("difficulty", "difficulty"))}
-            with tempfile.TemporaryDirectory() as scratch:
-                gif = Path(scratch) / "episode.gif"
-                pictures.episode_animation(env, poses, task, gif, control_dt, frames, size=1.6)
-                images = [f.convert("RGB") for f in ImageSequence.Iterator(Image.open(gif))]
-            width, height = images[0].size
-            row = Image.new("RGB", (width * len(images), height + 14), "white")
-            for k, image in enumerate(images):
-                row.paste(image, (k * width, 14))
-            ImageDraw.Draw(row).text((2, 1), label, fill="black")
-            rows.append(row)
+    with tempfile.TemporaryDirectory() as scratch:
+        for evaluation in sorted(p for p in out.iterdir() if p.is_dir()):
+            index = int(evaluation.name)
+            episodes = [(f"{index:03d} in the search", evaluation_dir(search_dir, index))]
+            episodes += [(f"{index:03d} at {bar:.2f} m", bar_dir(out, index, bar))
+                         for bar in bars]
+            env = drawing_env(evaluation / TRAIN)
+            for label, directory in episodes:
+                poses, control_dt, task = read_episode(directory, env.q0.dtype)
+                _, along = pictures.bar_directions(env, task)
+                row = Path(scratch) / f"{len(rows)}.png"
+                render.filmstrip(env.model, poses, row, world=env.world_for(task),
+                                 n_panels=panels, azimuth=pictures.azimuth_looking_along(along),
+                                 times=control_dt * (np.arange(len(poses)) + 1), title=label,
+                                 panel_size=1.6)
+                rows.append(Image.open(row).convert("RGB"))
     sheet = Image.new("RGB", (max(r.width for r in rows), sum(r.height for r in rows)), "white")
     top = 0
     for row in rows:

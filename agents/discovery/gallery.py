@@ -375,13 +375,7 @@ def draw(evaluation: Evaluation, images: Path, data_dir=None, echo=print, redraw
         if env is None:
             evaluation.notes.append("no pictures: its task has no world to draw")
             return
-        import jax.numpy as jnp
-        with np.load(episode) as data:
-            poses = np.asarray(data["poses"])
-            control_dt = float(data["control_dt"])
-            dtype = env.q0.dtype
-            task = {"takeoff": jnp.asarray(data["takeoff"], dtype),
-                    "difficulty": jnp.asarray(data["difficulty"], dtype)}
+        poses, control_dt, task = jump_black_box.read_episode(evaluation.directory, env.q0.dtype)
         echo(f"  drawing {evaluation.name} ({len(poses)} steps)")
         if redraw or not _fresh(peak, episode):
             pictures.peak_above_below(env, poses, task, peak, panel_size=PEAK_PANEL,

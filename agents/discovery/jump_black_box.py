@@ -243,5 +243,14 @@ def _keep_episode(directory: Path, episodes, height: float):
     pictures.peak_views(env, poses, episodes.task, directory / PEAK)
 
 
+def read_episode(directory, dtype):
+    """The episode `_keep_episode` kept in `directory`: its poses (T, nq), control step and the
+    task parameters it ran with (take-off state and bar height, as `dtype` arrays)."""
+    import jax.numpy as jnp
+    with np.load(Path(directory) / EPISODE) as data:
+        task = {name: jnp.asarray(data[name], dtype) for name in ("takeoff", "difficulty")}
+        return np.asarray(data["poses"]), float(data["control_dt"]), task
+
+
 def _prefixed(prefix):
     return lambda text="": print("\n".join(prefix + line for line in str(text).split("\n")))
