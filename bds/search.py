@@ -13,7 +13,8 @@ acquisition must differ from. With `batch = 1` this is Algorithm 1. A round's ev
 once, in worker processes or on Ray (`jaxsim.executor`; `workers` or `executor` of `search`).
 
 Persistence: every event is appended to a JSONL log and synced to disk at once — a header with the
-settings, each round's planned points before they are evaluated, and each evaluation once it and
+settings, each round's planned points before they are evaluated (with, for a model-based pick
+weighted by the success model, its chance of success there), and each evaluation once it and
 the round's evaluations before it have returned (so the log is in pick order however many run at
 once). `search` on an existing log resumes: finished evaluations are read back, not repeated; a
 round that was planned but not finished evaluates only its missing points; the next decisions are
@@ -265,15 +266,24 @@ def success_model(settings, first_index, x_unit, failed_unit, count=1):
                            settings.gp_restarts, settings.gp_steps)
 
 
-def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=None):
+class Plan(NamedTuple):
+    """A round's picks: their points (unit box), kinds, and each pick's chance of success under
+    the success model that weighted it (None for a random pick, or when there is no model)."""
+    points: list
+    kinds: list
+    success_probability: list
+
+
+def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=None) -> Plan:
     """The next `count` points (unit box, d = dim) for picks first_index, first_index + 1, …,
     given the successful evaluations x_unit (n, d) with their features (n, m) and the failed
-    ones' points failed_unit (k, d). Returns (points, kinds)."""
+    ones' points failed_unit (k, d)."""
     kinds = [settings.kind(first_index + j) for j in range(count)]
     if not len(x_unit):                 # nothing to model yet: every pick is a random point
         kinds = [kind if kind == "initial" else "random" for kind in kinds]
     if all(kind in ("initial", "random") for kind in kinds):
-        return [_random_point(settings, first_index + j, dim) for j in range(count)], kinds
+        return Plan([_random_point(settings, first_index + j, dim) for j in range(count)], kinds,
+                    [None] * count)
     failed_unit = np.zeros((0, dim)) if failed_unit is None else np.asarray(failed_unit)
     n = len(x_unit)
     capacity = _capacity(n + len(failed_unit) + count)
@@ -312,7 +322,11 @@ def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=
         picks.append(point)
         if j + 1 < count:                         # fantasise the pending point's outcome
             believe(point)
-    return picks, kinds
+    chances = ([None] * count if model is None else
+               np.asarray(feasibility.success_probability(model, jnp.asarray(np.stack(picks))))
+               .tolist())
+    return Plan(picks, kinds, [None if kind in ("initial", "random") else chance
+                               for kind, chance in zip(kinds, chances)])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -385,7 +399,7 @@ KINDS = ("initial", "explore", "diverse", "random")
 
 def _check_plan(record, dim):
     """What is wrong with a logged plan ("" when nothing): its first index, its points (lists
-    of `dim` numbers in the unit box) and their kinds."""
+    of `dim` numbers in the unit box), their kinds and their chances of success."""
     if not isinstance(record.get("first_index"), int) or record["first_index"] < 0:
         return f"first_index {record.get('first_index')!r} is not a whole number ≥ 0"
     points, kinds = record.get("points"), record.get("kinds")
@@ -395,6 +409,10 @@ def _check_plan(record, dim):
     if not (isinstance(kinds, list) and len(kinds) == len(points)
             and all(k in KINDS for k in kinds)):
         return f"kinds {kinds!r} are not one of {', '.join(KINDS)} per point"
+    chances = record.get("success_probability", [None] * len(points))   # older logs lack it
+    if not (isinstance(chances, list) and len(chances) == len(points)
+            and all(p is None or (_numbers([p], 1) and 0 <= p <= 1) for p in chances)):
+        return f"success_probability {chances!r} is not a chance in [0, 1] or null per point"
     return ""
 
 
@@ -492,10 +510,10 @@ class SearchLog:
             self.path.unlink(missing_ok=True)
             self.started = self.created = False
 
-    def add_plan(self, first_index, points, kinds):
+    def add_plan(self, first_index, points, kinds, success_probability):
         self.plans[first_index] = (points, kinds)
         self._append({"event": "plan", "first_index": first_index, "points": points,
-                      "kinds": kinds})
+                      "kinds": kinds, "success_probability": success_probability})
 
     def add_evaluation(self, record):
         self.evaluations[record["index"]] = record
@@ -625,10 +643,10 @@ def _run_rounds(settings, record_log, history, evaluate, finish, dim, executor):
             points, kinds = points[:count], kinds[:count]
         else:
             x_unit, features, failed_unit = history()
-            points, kinds = plan_round(settings, first, count, x_unit, features, dim,
-                                       failed_unit)
+            points, kinds, chances = plan_round(settings, first, count, x_unit, features, dim,
+                                                failed_unit)
             points = [np.asarray(p).tolist() for p in points]
-            record_log.add_plan(first, points, kinds)
+            record_log.add_plan(first, points, kinds, chances)
         todo = [first + j for j in range(len(points))
                 if first + j not in record_log.evaluations]
         _evaluate_round(executor, evaluate, finish,

@@ -14,7 +14,9 @@ from agents.commands.cli import main
 from jaxsim.executor import LocalProcesses
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.optimize import direct, maximize_lbfgs
-from bds.search import Failure, SearchError, SearchSettings, logged_evaluations, search
+from bds import feasibility
+from bds.search import (Failure, SearchError, SearchSettings, logged_evaluations, search,
+                        success_model)
 from jaxsim.runlog import LogWarning
 from test_cli import run as run_cli
 
@@ -671,3 +673,37 @@ def test_the_success_model_keeps_picks_out_of_the_failing_region():
                    SearchSettings(budget=6, initial=3, explore=1, diverse=1, seed=2,
                                   feasibility=feasible, **FAST)).x for feasible in (False, True)]
     np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_the_plans_log_each_model_pick_s_chance_of_success(tmp_path):
+    """Each logged plan gives its model-based picks the chance of success under the model fitted
+    again here from the evaluations logged before them; random and initial picks, and picks
+    before any failure (no model), have none. A chance outside [0, 1] is named on resume."""
+    log = tmp_path / "search.jsonl"
+    settings = SearchSettings(budget=9, initial=4, explore=1, diverse=1, seed=1, feasibility=True,
+                              **FAST)
+    g = _fails_left_of(0.5)
+    search(g, [0, 0], [1, 1], settings, log=log)
+    records = [json.loads(line) for line in log.read_text().splitlines()]
+    plans = [r for r in records if r["event"] == "plan"]
+    evaluations = [r for r in records if r["event"] == "evaluation"]
+    checked = 0
+    for plan in plans:
+        first, (chance,), (kind,) = (plan["first_index"], plan["success_probability"],
+                                     plan["kinds"])
+        before = evaluations[:first]
+        failed = [r["x"] for r in before if r["feature"] is None]
+        if kind in ("initial", "random") or not failed:
+            assert chance is None, plan
+            continue
+        model = success_model(settings, first,
+                              np.array([r["x"] for r in before if r["feature"] is not None]),
+                              np.array(failed))
+        expected = feasibility.success_probability(model, jnp.asarray(plan["points"]))[0]
+        assert chance == pytest.approx(float(expected), rel=1e-9), plan
+        checked += 1
+    assert checked >= 3
+    log.write_text(log.read_text().replace('"success_probability": [0.',
+                                           '"success_probability": [7.', 1))
+    with pytest.raises(SearchError, match=r"record \d+: the plan's success_probability \[7\."):
+        search(g, [0, 0], [1, 1], settings, log=log)

@@ -109,6 +109,10 @@ def search_dir(tmp_path_factory, data_dir):
     with pytest.raises(StillTraining):
         search(StandIn(out, str(train_toml), data_dir), lower, upper, config.search,
                log=out / "evaluations.jsonl")
+    # as a search with the success model would have logged it for evaluation 002's pick
+    log = out / "evaluations.jsonl"
+    log.write_text(re.sub(r'("first_index": 2, .*"success_probability": )\[null\]',
+                          r"\1[0.42]", log.read_text()))
     # Stage 2: a run that repeats Stage 1's evaluation 001 and a novel one, in their own folder
     first = jump_black_box.evaluation_dir(out, 1)
     for index, rotvec in enumerate(STAGE2_ROTVECS):
@@ -156,6 +160,7 @@ def test_outcomes_failure_reason_and_in_progress(written):
     assert "<img" not in training
     success = _card(page, "eval-002")
     assert "success" in success and "0.80 m" in success
+    assert "P[success] = 0.42" in success and "P[success]" not in failure
     assert f"{math.degrees(2.60):.1f}°" in success and "2.600 rad" in success
     for label in ("α", "ω<sub>x</sub>", "ω<sub>z</sub>", "v<sub>z</sub>"):
         assert label in success

@@ -8,8 +8,9 @@ One self-contained HTML page, `gallery.html`, beside a folder `gallery/` of the 
   take-off state x and feature, the highest bar any of its evaluations cleared, and its
   evaluations;
 - a contact sheet (`gallery/contact_sheet.png`): every evaluation's peak pose on one image;
-- per evaluation: its index, kind (initial / explore / diverse / random), x with its named
-  components (`agents.tasks.takeoff_state`), the feature (degrees and radians), the highest bar
+- per evaluation: its index, kind (initial / explore / diverse / random, with the chance of
+  success the search's success model gave a model-based pick, when its log has one), x with its
+  named components (`agents.tasks.takeoff_state`), the feature (degrees and radians), the highest bar
   cleared, success or failure (with the reason), the peak pose along the bar and seen from above
   and below it (Fig. 3.4; `gallery/NNN_peak.png`), an animated GIF of the evaluated episode
   (`gallery/NNN.gif`), its strategy, and its result.json;
@@ -94,6 +95,7 @@ class Evaluation:
     gif: str | None = None
     notes: list = field(default_factory=list)      # why no pictures, why not counted, …
     repeats: list = field(default_factory=list)    # Stage 2: the Stage-1 evaluations it repeats
+    success_probability: float | None = None       # the success model's chance when picked
 
     @property
     def name(self) -> str:
@@ -176,7 +178,8 @@ def _evaluation(stage, index, directory, kind, x, record=None) -> Evaluation:
 
 
 def _planned(log: Path) -> dict:
-    """{index: (kind, x)} of every point the search log planned."""
+    """{index: (kind, x, chance of success when picked or None)} of every point the search
+    log planned."""
     from bds.gp import from_unit
     records = runlog.read(log).records
     if not records or records[0].get("event") != "start":
@@ -185,9 +188,11 @@ def _planned(log: Path) -> dict:
     planned = {}
     for record in records:
         if record.get("event") == "plan":
-            for k, (point, kind) in enumerate(zip(record["points"], record["kinds"])):
+            chances = record.get("success_probability") or [None] * len(record["points"])
+            for k, (point, kind, chance) in enumerate(zip(record["points"], record["kinds"],
+                                                          chances)):
                 x = from_unit(np.asarray(point, float), lower, upper)
-                planned[record["first_index"] + k] = (kind, [float(v) for v in x])
+                planned[record["first_index"] + k] = (kind, [float(v) for v in x], chance)
     return planned
 
 
@@ -227,10 +232,11 @@ def _stage1(search_dir: Path, config: dict) -> Section:
     evaluations = []
     for index in sorted(set(records) | set(planned) | set(dirs)):
         record = records.get(index)
-        kind, x = planned.get(index, ("?", None))
+        kind, x, chance = planned.get(index, ("?", None, None))
         if record is not None:
             kind, x = record["kind"], record["x"]
         evaluation = _evaluation(1, index, dirs.get(index), kind, x, record)
+        evaluation.success_probability = chance
         if record is not None:
             evaluation.feature = record["feature"]
             measured = ((evaluation.result or {}).get("feature") or {}).get("up_angle")
@@ -548,7 +554,10 @@ def _strategy_text(evaluation: Evaluation, section: Section, members: dict) -> s
 
 def _card(evaluation: Evaluation, section: Section, members: dict) -> str:
     result = evaluation.result or {}
-    rows = [("kind", e(evaluation.kind)),
+    kind = evaluation.kind
+    if evaluation.success_probability is not None:
+        kind += f" (the success model gave it P[success] = {evaluation.success_probability:.2f})"
+    rows = [("kind", e(kind)),
             ("x", _x_list(evaluation.x, section.task)),
             ("feature", _feature_text(evaluation, section)),
             ("highest bar cleared", f"{_number(result.get('highest_cleared'))} m"
