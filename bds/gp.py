@@ -20,6 +20,18 @@ Hyperparameters are fitted by maximising the log marginal likelihood with Adam f
 starts (vmapped). Each is a bounded log transform, log θ = centre + half-width · tanh(raw), which keeps
 them positive and inside a sane range (lengthscales 0.01–10 box widths, signal variance 10⁻³–10²
 and noise variance 10⁻⁶–1 of the data variance) with smooth gradients everywhere.
+
+With a handful of observations the marginal likelihood cannot pin the hyperparameters down, and
+its maximum is often degenerate. Two features in a 4-D box are best explained either by
+lengthscales of a few hundredths, so that the two points are independent, or by noise alone; in
+both cases the posterior σ is flat everywhere except right at the data, and an exploration pick
+maximising it has nothing to go on (the third high-jump search, docs/discovery). `hyperprior`
+maximises the posterior of the hyperparameters instead, with the weak priors that BoTorch adopted
+from Hvarfner, Hellsten & Nardi ("Vanilla Bayesian Optimization Performs Great in High
+Dimensions", ICML 2024): log ℓ ~ N(√2 + ½ log d, 3) per lengthscale (in box widths, so for d = 4
+a median of 8 widths: smooth unless the data say otherwise) and log σ_n² ~ N(−4, 1) (in units of
+the data variance: little noise unless the data say otherwise). The signal variance keeps no
+prior.
 """
 
 from typing import NamedTuple
@@ -33,6 +45,9 @@ JITTER = 1e-6                      # added to the diagonal, in units of the sign
 LOG_LENGTHSCALE_RANGE = (np.log(0.01), np.log(10.0))
 LOG_SIGNAL_RANGE = (np.log(1e-3), np.log(1e2))       # relative to the data variance
 LOG_NOISE_RANGE = (np.log(1e-6), np.log(1.0))        # relative to the data variance
+# `hyperprior`: log ℓ ~ N(√2 + ½ log d, 3) and log σ_n² ~ N(−4, 1) (see the module docstring)
+LENGTHSCALE_PRIOR_STD = np.sqrt(3.0)
+NOISE_PRIOR = (-4.0, 1.0)
 
 
 class Hyperparameters(NamedTuple):
@@ -84,6 +99,21 @@ def _masked_covariance(x, mask, lengthscales, signal_variance, noise_variance):
     return kernel + jnp.diag(diagonal)
 
 
+def lengthscale_prior_mean(dim):
+    """The mean of the lengthscales' log-normal prior in `dim` dimensions."""
+    return np.sqrt(2.0) + 0.5 * np.log(dim)
+
+
+def log_hyperprior(hyper: Hyperparameters):
+    """log p(θ) of one output's lengthscales and noise variance under `hyperprior`'s priors, up to
+    a constant (normal densities of their logarithms)."""
+    def log_normal(value, mean, std):
+        return -0.5 * jnp.sum(((jnp.log(value) - mean) / std) ** 2)
+    return (log_normal(hyper.lengthscales, lengthscale_prior_mean(hyper.lengthscales.shape[-1]),
+                       LENGTHSCALE_PRIOR_STD)
+            + log_normal(hyper.noise_variance, *NOISE_PRIOR))
+
+
 def _unpack(raw, dim):
     """Raw unconstrained vector (k + 2,) → Hyperparameters, with k = d lengthscales (ARD) or
     k = 1 (one lengthscale for every dimension, broadcast to d)."""
@@ -111,13 +141,18 @@ def log_marginal_likelihood(x, residual, mask, hyper: Hyperparameters):
             - 0.5 * n * jnp.log(2.0 * jnp.pi))
 
 
-def _fit_one_output(x, residual, mask, key, restarts, steps, learning_rate, isotropic):
+def _fit_one_output(x, residual, mask, key, restarts, steps, learning_rate, isotropic,
+                    hyperprior):
     """Best raw hyperparameters of one output over `restarts` Adam runs (restart 0 starts at the
-    middle of every range; the others at random)."""
+    middle of every range; the others at random): of the marginal likelihood, or with
+    `hyperprior` of the hyperparameters' posterior."""
     dim = x.shape[1]
 
     def loss(raw):
-        value = -log_marginal_likelihood(x, residual, mask, _unpack(raw, dim))
+        hyper = _unpack(raw, dim)
+        value = -log_marginal_likelihood(x, residual, mask, hyper)
+        if hyperprior:
+            value = value - log_hyperprior(hyper)
         return jnp.where(jnp.isfinite(value), value, jnp.inf)
 
     optimizer = optax.adam(learning_rate)
@@ -142,7 +177,8 @@ def _standardised_residuals(y, mask, prior_mean, scale):
     return jnp.where(mask[:, None], (y - prior_mean) / scale, 0.0).T                  # (m, n)
 
 
-def _fit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate, isotropic):
+def _fit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate, isotropic,
+         hyperprior):
     count = jnp.maximum(jnp.sum(mask), 1)
     observed_mean = jnp.sum(jnp.where(mask[:, None], y, 0.0), axis=0) / count
     variance = jnp.sum(jnp.where(mask[:, None], (y - observed_mean) ** 2, 0.0), axis=0) / count
@@ -150,8 +186,8 @@ def _fit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate,
     scale = jnp.where(scale > 0, scale, 1.0)
     residuals = _standardised_residuals(y, mask, prior_mean, scale)
     keys = jax.random.split(key, y.shape[1])
-    raws = jax.vmap(_fit_one_output, in_axes=(None, 0, None, 0, None, None, None, None))(
-        x, residuals, mask, keys, restarts, steps, learning_rate, isotropic)
+    raws = jax.vmap(_fit_one_output, in_axes=(None, 0, None, 0, None, None, None, None, None))(
+        x, residuals, mask, keys, restarts, steps, learning_rate, isotropic, hyperprior)
     hyper = jax.vmap(_unpack, in_axes=(0, None))(raws, x.shape[1])
     return condition(Posterior(x, mask, prior_mean, scale, hyper, None, None), x, y, mask)
 
@@ -167,11 +203,11 @@ def condition(posterior: Posterior, x, y, mask):
     return posterior._replace(x=x, mask=mask, cholesky=chol, alpha=alpha)
 
 
-_fit_jit = jax.jit(_fit, static_argnames=("restarts", "steps", "isotropic"))
+_fit_jit = jax.jit(_fit, static_argnames=("restarts", "steps", "isotropic", "hyperprior"))
 
 
 def fit(x, y, mask=None, prior_mean=None, key=None, restarts=8, steps=200, learning_rate=0.05,
-        min_scale=0.0, isotropic=False):
+        min_scale=0.0, isotropic=False, hyperprior=False):
     """Fit a GP to observations x (n, d) in the unit box and y (n, m) (or (n,)).
 
     `mask` (n,) marks the real rows of padded arrays (default: all). `prior_mean` (m,) is the constant
@@ -179,7 +215,9 @@ def fit(x, y, mask=None, prior_mean=None, key=None, restarts=8, steps=200, learn
     their observed standard deviation, but by no less than `min_scale` (m,): with few observations,
     or all of one value, the observed spread says little about how far the function can vary, and
     the fitted signal variance is a multiple of this unit. `isotropic` fits one lengthscale for
-    every input dimension instead of one each (ARD). Returns a `Posterior`.
+    every input dimension instead of one each (ARD). `hyperprior` fits the hyperparameters'
+    posterior under weak priors instead of the marginal likelihood alone (module docstring).
+    Returns a `Posterior`.
     """
     x = jnp.asarray(x)
     y = jnp.asarray(y, x.dtype)
@@ -198,7 +236,7 @@ def fit(x, y, mask=None, prior_mean=None, key=None, restarts=8, steps=200, learn
     min_scale = jnp.broadcast_to(jnp.asarray(min_scale, x.dtype), (y.shape[1],))
     key = jax.random.PRNGKey(0) if key is None else key
     return _fit_jit(x, y, mask, prior_mean, min_scale, key, restarts, steps, learning_rate,
-                    isotropic)
+                    isotropic, hyperprior)
 
 
 @jax.jit

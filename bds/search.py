@@ -104,6 +104,9 @@ class SearchSettings:
     # Weight every model-based pick's acquisition by the chance that x succeeds, from a GP of
     # the evaluations' successes and failures (`bds.feasibility`); off: Algorithm 1 as written.
     feasibility: bool = False
+    # Fit the feature GP's hyperparameters under weak priors (`bds.gp`, `hyperprior`) instead of
+    # by the marginal likelihood alone, which with a few evaluations is degenerate.
+    hyperprior: bool = False
 
     def __post_init__(self):
         if self.strategy not in STRATEGIES:
@@ -292,7 +295,8 @@ def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=
     key = _round_key(settings, first_index)
     prior_mean, min_scale = settings.feature_prior(fs.shape[1])
     posterior = gp.fit(xs, fs, mask, prior_mean=prior_mean, key=key,
-                       restarts=settings.gp_restarts, steps=settings.gp_steps, min_scale=min_scale)
+                       restarts=settings.gp_restarts, steps=settings.gp_steps, min_scale=min_scale,
+                       hyperprior=settings.hyperprior)
     model = success_model(settings, first_index, x_unit, failed_unit, count)
     visited = n
 

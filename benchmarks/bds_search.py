@@ -38,6 +38,8 @@ Run:  python benchmarks/bds_search.py                       (50 landscapes)
       python benchmarks/bds_search.py --feature-range             (BDS told the features' range)
       python benchmarks/bds_search.py --ballistic                 (50 seeds on the ballistic box)
       python benchmarks/bds_search.py --ballistic --feasibility   (and BDS with bds.feasibility)
+      python benchmarks/bds_search.py --ballistic --feasibility --hyperprior \
+          --methods random bds-feasible bds-feasible-hyperprior   (the GP's hyperparameter priors)
 Writes JSON (default benchmarks/results/bds.json; bds_ballistic.json with --ballistic) and
 prints a markdown table.
 """
@@ -83,6 +85,14 @@ METHODS = {
 # --ballistic --feasibility adds BDS (q = 1) whose picks are weighted by the chance of success
 # (`bds.feasibility`).
 FEASIBLE_METHODS = {"bds-feasible": dict(strategy="bds", batch=1, feasibility=True)}
+# --ballistic --hyperprior adds BDS whose feature GP is fitted under weak hyperparameter priors
+# (`bds.gp`, `hyperprior`), with the success model too when --feasibility is given.
+HYPERPRIOR_METHODS = {"bds-hyperprior": dict(strategy="bds", batch=1, hyperprior=True)}
+FEASIBLE_HYPERPRIOR_METHODS = {"bds-feasible-hyperprior": dict(strategy="bds", batch=1,
+                                                               feasibility=True, hyperprior=True)}
+# Each added method's ratio in the summary is to the method it adds one setting to.
+BASELINE = {"bds-feasible": "bds", "bds-hyperprior": "bds",
+            "bds-feasible-hyperprior": "bds-feasible"}
 
 
 def describe_picks(landscape, volumes, result):
@@ -386,7 +396,14 @@ def ballistic(args):
           f"{distribution['failure_fraction']:.3f}", file=sys.stderr, flush=True)
     if args.plot_resolution:
         plot_slices(box, lower, upper, args.plot, args.plot_resolution)
-    methods = {**METHODS, **(FEASIBLE_METHODS if args.feasibility else {})}
+    methods = {**METHODS, **(FEASIBLE_METHODS if args.feasibility else {}),
+               **(HYPERPRIOR_METHODS if args.hyperprior else {}),
+               **(FEASIBLE_HYPERPRIOR_METHODS if args.feasibility and args.hyperprior else {})}
+    if args.methods:
+        unknown = sorted(set(args.methods) - set(methods))
+        if unknown:
+            raise SystemExit(f"--methods: {', '.join(unknown)} not among {', '.join(methods)}")
+        methods = {m: methods[m] for m in args.methods}
     start = time.perf_counter()
     rows = run_ballistic_searches(box, lower, upper, args, feature_range, methods)
     search_seconds = time.perf_counter() - start
@@ -397,15 +414,15 @@ def ballistic(args):
         [[method, *(f"{m:.2f} ± {e:.2f}" for m, e in by_c.values())]
          for method, by_c in headline.items()]), ""]
     lines.append(width_table(table, distribution, args.widths, args.checkpoints))
-    if args.feasibility:
-        lines += ["", "with the success model, per bin width (distinct strategies, ratio to "
-                  "the same method without it):"]
+    added = [m for m in methods if BASELINE.get(m) in methods]
+    if added:
+        lines += ["", "the added settings, per bin width (distinct strategies, ratio to the "
+                  "same method without the setting):"]
         for w in args.widths:
             mean = lambda method, c: table[str(w)][method][str(c)][0]
             lines.append(f"  {w:g}°: " + "; ".join(
-                f"{m} @{c} {mean(m, c):.2f} "
-                f"({mean(m, c) / mean(m.removesuffix('-feasible'), c):.2f}×)"
-                for m in FEASIBLE_METHODS for c in args.checkpoints))
+                f"{m} @{c} {mean(m, c):.2f} ({mean(m, c) / mean(BASELINE[m], c):.2f}×)"
+                for m in added for c in args.checkpoints))
     failures = {m: float(np.mean([r["failures"] for r in rows if r["method"] == m]))
                 for m in methods}
     timing = {m: {"search_s": float(np.mean([r["seconds"] for r in rows if r["method"] == m])),
@@ -459,6 +476,12 @@ def main(argv=None):
     parser.add_argument("--feasibility", action="store_true",
                         help="--ballistic: also run BDS with its picks weighted by the chance "
                              "of success (bds.feasibility)")
+    parser.add_argument("--hyperprior", action="store_true",
+                        help="--ballistic: also run BDS with its feature GP fitted under weak "
+                             "hyperparameter priors (bds.gp), with and without the success "
+                             "model as --feasibility says")
+    parser.add_argument("--methods", nargs="+",
+                        help="--ballistic: run only these methods (e.g. random bds-feasible)")
     parser.add_argument("--unknown-range", action="store_true",
                         help="--ballistic: do not tell the searches the up angle's range [0, π]")
     parser.add_argument("--plot", type=Path, default=DEFAULT_PLOT,

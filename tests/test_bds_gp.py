@@ -137,6 +137,43 @@ def test_exploration_is_largest_away_from_data():
     assert std[1] > 3 * std[0]
 
 
+def test_the_hyperprior_keeps_two_observations_from_making_the_posterior_flat():
+    """The third high-jump search's first model pick (docs/discovery): two features in a 4-D
+    box, 74° and 165° with the prior mean at 90°. By the marginal likelihood alone the posterior
+    σ is the same nearly everywhere, so exploration cannot tell a corner from a point beside
+    the data; under the hyperparameter priors it is several times larger far from the data, and
+    it fits a few-percent noise rather than near none or all."""
+    x = np.array([[0.64, 0.27, 0.04, 0.02], [0.90, 0.86, 0.32, 0.32]])      # 000 and 003
+    y = np.radians([[74.0], [165.0]])
+    rest = dict(prior_mean=np.pi / 2, min_scale=np.pi / 4, key=jax.random.PRNGKey(4),
+                restarts=8, steps=200)
+    points = jnp.asarray(np.random.default_rng(0).uniform(size=(2000, 4)))
+    near = jnp.asarray(x + 0.1)
+    for hyperprior, spread in ((False, 1.05), (True, 2.0)):
+        posterior = gp.fit(x, y, hyperprior=hyperprior, **rest)
+        std = np.asarray(acquisition.exploration(posterior, points))
+        ratio = std.max() / float(np.max(acquisition.exploration(posterior, near)))
+        assert (ratio < spread) if not hyperprior else (ratio > spread), (hyperprior, ratio)
+    noise = float(posterior.hyper.noise_variance[0])
+    assert 1e-3 < noise < 0.2
+    # the prior's density, by hand: log ℓ ~ N(√2 + ½ log d, 3), log σ_n² ~ N(−4, 1)
+    hyper = gp.Hyperparameters(jnp.array([1.0, np.e]), jnp.array(1.0), jnp.array(np.exp(-3.0)))
+    mean = np.sqrt(2) + 0.5 * np.log(2)
+    expected = -0.5 * (mean ** 2 + (1 - mean) ** 2) / 3 - 0.5
+    np.testing.assert_allclose(float(gp.log_hyperprior(hyper)), expected, rtol=1e-12)
+
+
+def test_the_hyperprior_changes_little_where_the_data_decide():
+    rng = np.random.default_rng(6)
+    x, x_star = rng.uniform(size=(40, 2)), rng.uniform(size=(50, 2))
+    y = np.sin(5 * x[:, 0]) + 0.5 * x[:, 1]
+    plain, with_prior = (gp.fit(x, y, restarts=4, steps=300, hyperprior=h) for h in (False, True))
+    truth = np.sin(5 * x_star[:, 0]) + 0.5 * x_star[:, 1]
+    for posterior in (plain, with_prior):
+        mean, _ = gp.predict(posterior, jnp.asarray(x_star))
+        assert np.max(np.abs(np.asarray(mean[:, 0]) - truth)) < 0.05
+
+
 def test_a_known_feature_range_keeps_the_prior_wide_when_every_observation_agrees():
     # Five points of one strategy: the observed spread is only the noise (0.01).
     x = np.random.default_rng(2).uniform(0.0, 0.3, size=(5, 2))
