@@ -413,7 +413,8 @@ def ballistic(args):
         ["method", *(f"distinct @{c} (mean ± s.e.)" for c in args.checkpoints)],
         [[method, *(f"{m:.2f} ± {e:.2f}" for m, e in by_c.values())]
          for method, by_c in headline.items()]), ""]
-    lines.append(width_table(table, distribution, args.widths, args.checkpoints))
+    if all(m in methods for m in METHODS):        # its ratios need all three
+        lines.append(width_table(table, distribution, args.widths, args.checkpoints))
     added = [m for m in methods if BASELINE.get(m) in methods]
     if added:
         lines += ["", "the added settings, per bin width (distinct strategies, ratio to the "
