@@ -26,12 +26,12 @@ its maximum is often degenerate. Two features in a 4-D box are best explained ei
 lengthscales of a few hundredths, so that the two points are independent, or by noise alone; in
 both cases the posterior σ is flat everywhere except right at the data, and an exploration pick
 maximising it has nothing to go on (the third high-jump search, docs/discovery). `hyperprior`
-maximises the posterior of the hyperparameters instead, with the weak priors that BoTorch adopted
-from Hvarfner, Hellsten & Nardi ("Vanilla Bayesian Optimization Performs Great in High
-Dimensions", ICML 2024): log ℓ ~ N(√2 + ½ log d, 3) per lengthscale (in box widths, so for d = 4
-a median of 8 widths: smooth unless the data say otherwise) and log σ_n² ~ N(−4, 1) (in units of
-the data variance: little noise unless the data say otherwise). The signal variance keeps no
-prior.
+maximises the posterior of the hyperparameters instead, with the weak priors that BoTorch
+adopted from Hvarfner, Hellsten & Nardi ("Vanilla Bayesian Optimization Performs Great in High
+Dimensions", ICML 2024): log ℓ ~ N(√2 + ½ log d, 3) per lengthscale (in box widths, so for
+d = 4 a median of 8 widths: smooth unless the data say otherwise) and log σ_n² ~ N(−4, 1) (in
+units of the data variance: little noise unless the data say otherwise). The signal variance
+keeps no prior.
 """
 
 from typing import NamedTuple

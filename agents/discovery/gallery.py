@@ -10,10 +10,10 @@ One self-contained HTML page, `gallery.html`, beside a folder `gallery/` of the 
 - a contact sheet (`gallery/contact_sheet.png`): every evaluation's peak pose on one image;
 - per evaluation: its index, kind (initial / explore / diverse / random, with the chance of
   success the search's success model gave a model-based pick, when its log has one), x with its
-  named components (`agents.tasks.takeoff_state`), the feature (degrees and radians), the highest bar
-  cleared, success or failure (with the reason), the peak pose along the bar and seen from above
-  and below it (Fig. 3.4; `gallery/NNN_peak.png`), an animated GIF of the evaluated episode
-  (`gallery/NNN.gif`), its strategy, and its result.json;
+  named components (`agents.tasks.takeoff_state`), the feature (degrees and radians), the
+  highest bar cleared, success or failure (with the reason), the peak pose along the bar and
+  seen from above and below it (Fig. 3.4; `gallery/NNN_peak.png`), an animated GIF of the
+  evaluated episode (`gallery/NNN.gif`), its strategy, and its result.json;
 - an evaluation without result.json yet is "in progress", with the bar its training has
   reached (train/metrics.jsonl); a planned one without a directory yet is "waiting";
 - Stage 2's evaluations (`SEARCH/stage2/NNN/`, the same files), when there are any, in a section
