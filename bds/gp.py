@@ -104,12 +104,14 @@ def lengthscale_prior_mean(dim):
     return np.sqrt(2.0) + 0.5 * np.log(dim)
 
 
-def log_hyperprior(hyper: Hyperparameters):
+def log_hyperprior(hyper: Hyperparameters, isotropic=False):
     """log p(θ) of one output's lengthscales and noise variance under `hyperprior`'s priors, up to
-    a constant (normal densities of their logarithms)."""
+    a constant (normal densities of their logarithms); an isotropic fit's one lengthscale (its
+    d equal entries) counts once."""
     def log_normal(value, mean, std):
         return -0.5 * jnp.sum(((jnp.log(value) - mean) / std) ** 2)
-    return (log_normal(hyper.lengthscales, lengthscale_prior_mean(hyper.lengthscales.shape[-1]),
+    lengthscales = hyper.lengthscales[..., :1] if isotropic else hyper.lengthscales
+    return (log_normal(lengthscales, lengthscale_prior_mean(hyper.lengthscales.shape[-1]),
                        LENGTHSCALE_PRIOR_STD)
             + log_normal(hyper.noise_variance, *NOISE_PRIOR))
 
@@ -152,7 +154,7 @@ def _fit_one_output(x, residual, mask, key, restarts, steps, learning_rate, isot
         hyper = _unpack(raw, dim)
         value = -log_marginal_likelihood(x, residual, mask, hyper)
         if hyperprior:
-            value = value - log_hyperprior(hyper)
+            value = value - log_hyperprior(hyper, isotropic)
         return jnp.where(jnp.isfinite(value), value, jnp.inf)
 
     optimizer = optax.adam(learning_rate)

@@ -269,6 +269,44 @@ def success_model(settings, first_index, x_unit, failed_unit, count=1):
                            settings.gp_restarts, settings.gp_steps)
 
 
+class RoundModel:
+    """The feature GP a round's picks are made with (see the module docstring): fitted to the
+    successful evaluations x_unit (n, d) and their features (n, m), then each failed point of
+    failed_unit added as visited (`believe`), in padded arrays with room for the round's
+    `count` pending points."""
+
+    def __init__(self, settings, first_index, x_unit, features, failed_unit, count):
+        self.real_count, self.failed_count = len(x_unit), len(failed_unit)
+        capacity = _capacity(self.real_count + self.failed_count + count)
+        self.mask = np.arange(capacity) < self.real_count
+        self.xs, self.fs = _padded(x_unit, capacity), _padded(features, capacity)
+        self.key = _round_key(settings, first_index)
+        prior_mean, min_scale = settings.feature_prior(self.fs.shape[1])
+        self.posterior = gp.fit(self.xs, self.fs, self.mask, prior_mean=prior_mean, key=self.key,
+                                restarts=settings.gp_restarts, steps=settings.gp_steps,
+                                min_scale=min_scale, hyperprior=settings.hyperprior)
+        self.visited = self.real_count
+        for point in failed_unit:
+            self.believe(point)
+
+    def believe(self, point):
+        """Add `point` as visited, its outcome the model's prediction there: the posterior mean
+        stays, its variance there drops."""
+        believed, _ = gp.predict(self.posterior, jnp.asarray(point)[None])
+        row = self.visited
+        self.xs[row], self.fs[row], self.mask[row] = point, np.asarray(believed)[0], True
+        self.visited += 1
+        self.posterior = gp.condition(self.posterior, jnp.asarray(self.xs),
+                                      jnp.asarray(self.fs), jnp.asarray(self.mask))
+
+    def compared(self):
+        """The rows the diversity acquisition compares against: the real features and, in a
+        batched round, the pending points' believed ones — never a failure's."""
+        rows = np.arange(len(self.mask))
+        return (rows < self.real_count) | (self.mask
+                                           & (rows >= self.real_count + self.failed_count))
+
+
 class Plan(NamedTuple):
     """A round's picks: their points (unit box), kinds, and each pick's chance of success under
     the success model that weighted it (None for a random pick, or when there is no model)."""
@@ -288,44 +326,20 @@ def plan_round(settings, first_index, count, x_unit, features, dim, failed_unit=
         return Plan([_random_point(settings, first_index + j, dim) for j in range(count)], kinds,
                     [None] * count)
     failed_unit = np.zeros((0, dim)) if failed_unit is None else np.asarray(failed_unit)
-    n = len(x_unit)
-    capacity = _capacity(n + len(failed_unit) + count)
-    mask = np.arange(capacity) < n
-    xs, fs = _padded(x_unit, capacity), _padded(features, capacity)
-    key = _round_key(settings, first_index)
-    prior_mean, min_scale = settings.feature_prior(fs.shape[1])
-    posterior = gp.fit(xs, fs, mask, prior_mean=prior_mean, key=key,
-                       restarts=settings.gp_restarts, steps=settings.gp_steps, min_scale=min_scale,
-                       hyperprior=settings.hyperprior)
+    surrogate = RoundModel(settings, first_index, x_unit, features, failed_unit, count)
     model = success_model(settings, first_index, x_unit, failed_unit, count)
-    visited = n
-
-    def believe(point):
-        """Add `point` as visited, its outcome the model's prediction there (see the module
-        docstring): the posterior mean stays, its variance there drops."""
-        nonlocal posterior, visited
-        believed, _ = gp.predict(posterior, jnp.asarray(point)[None])
-        xs[visited], fs[visited], mask[visited] = point, np.asarray(believed)[0], True
-        visited += 1
-        posterior = gp.condition(posterior, jnp.asarray(xs), jnp.asarray(fs), jnp.asarray(mask))
-
-    for point in failed_unit:
-        believe(point)
-    real = np.arange(capacity) < n
     picks = []
     for j, kind in enumerate(kinds):
         index = first_index + j
         if kind in ("initial", "random"):
             point = _random_point(settings, index, dim)
         else:
-            # The diversity acquisition compares against the real features and, in a batched
-            # round, the pending points' believed ones — never a failure's.
-            pending = mask & (np.arange(capacity) >= n + len(failed_unit))
-            point = _pick(settings, kind, posterior, model, jnp.asarray(fs),
-                          jnp.asarray(real | pending), dim, jax.random.fold_in(key, index))
+            point = _pick(settings, kind, surrogate.posterior, model, jnp.asarray(surrogate.fs),
+                          jnp.asarray(surrogate.compared()), dim,
+                          jax.random.fold_in(surrogate.key, index))
         picks.append(point)
         if j + 1 < count:                         # fantasise the pending point's outcome
-            believe(point)
+            surrogate.believe(point)
     chances = ([None] * count if model is None else
                np.asarray(feasibility.success_probability(model, jnp.asarray(np.stack(picks))))
                .tolist())

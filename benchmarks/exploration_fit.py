@@ -2,9 +2,8 @@
 fits before pick INDEX of a logged search, and where its posterior σ (eq. 3.10) times the
 success model's P[success] is largest.
 
-For the evaluations logged before INDEX it fits the feature GP as `plan_round` does (the
-successes' features, then each failure added as a visited point with the model's own
-prediction) and the success model, and prints the fitted hyperparameters, σ and P over uniform
+For the evaluations logged before INDEX it fits the feature GP as `plan_round` does
+(`bds.search.RoundModel`) and the success model, and prints the fitted hyperparameters, σ and P over uniform
 points of the box, and the best of those points by σ · P and by σ alone. `--hyperprior` fits
 the feature GP under `bds.gp`'s hyperparameter priors instead, whatever the search used.
 
@@ -22,8 +21,7 @@ import numpy as np
 
 from agents.tasks.takeoff_state import HIGHJUMP_BOUNDS
 from bds import acquisition, feasibility, gp
-from bds.search import (SearchSettings, _capacity, _padded, _round_key, logged_evaluations,
-                        success_model)
+from bds.search import RoundModel, SearchSettings, logged_evaluations, success_model
 
 
 def fitted(directory: Path, index: int, hyperprior: bool | None):
@@ -39,19 +37,10 @@ def fitted(directory: Path, index: int, hyperprior: bool | None):
     good = [r for r in records if r["feature"] is not None]
     failed_unit = unit([r for r in records if r["feature"] is None])
     x_unit, features = unit(good), np.array([r["feature"] for r in good])
-    capacity = _capacity(len(x_unit) + len(failed_unit) + 1)
-    xs, fs = _padded(x_unit, capacity), _padded(features, capacity)
-    mask = np.arange(capacity) < len(x_unit)
-    prior_mean, min_scale = settings.feature_prior(fs.shape[1])
-    posterior = gp.fit(xs, fs, mask, prior_mean=prior_mean, key=_round_key(settings, index),
-                       restarts=settings.gp_restarts, steps=settings.gp_steps,
-                       min_scale=min_scale, hyperprior=settings.hyperprior)
-    for row, point in enumerate(failed_unit, len(x_unit)):       # as plan_round believes them
-        believed, _ = gp.predict(posterior, jnp.asarray(point)[None])
-        xs[row], fs[row], mask[row] = point, np.asarray(believed)[0], True
-    posterior = gp.condition(posterior, jnp.asarray(xs), jnp.asarray(fs), jnp.asarray(mask))
+    posterior = RoundModel(settings, index, x_unit, features, failed_unit, 1).posterior
     model = success_model(settings, index, x_unit, failed_unit)
     return posterior, model, (lower, upper), records
+
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

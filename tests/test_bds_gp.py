@@ -161,6 +161,10 @@ def test_the_hyperprior_keeps_two_observations_from_making_the_posterior_flat():
     mean = np.sqrt(2) + 0.5 * np.log(2)
     expected = -0.5 * (mean ** 2 + (1 - mean) ** 2) / 3 - 0.5
     np.testing.assert_allclose(float(gp.log_hyperprior(hyper)), expected, rtol=1e-12)
+    # an isotropic fit's one lengthscale, broadcast over d = 2, counts once
+    one = gp.Hyperparameters(jnp.array([np.e, np.e]), jnp.array(1.0), jnp.array(np.exp(-3.0)))
+    np.testing.assert_allclose(float(gp.log_hyperprior(one, isotropic=True)),
+                               -0.5 * (1 - mean) ** 2 / 3 - 0.5, rtol=1e-12)
 
 
 def test_the_hyperprior_changes_little_where_the_data_decide():
