@@ -473,6 +473,41 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
         stage2_search.run(directory, rounds=3, out=out, echo=QUIET)
 
 
+def test_a_strategy_whose_representative_lost_its_policy_starts_from_one_that_has_it(
+        tmp_path, data_dir, monkeypatch):
+    """A search carried to another machine keeps results, not policies: where the
+    representative's checkpoint is gone, the strategy's rounds start from the member with a
+    policy that cleared the highest bar, and say so; a strategy with no policy anywhere keeps
+    its representative."""
+    eval_3 = rotvec([1, 0, 0], 2.5)
+    directory = make_search(tmp_path / "search", [(0.2, EVAL_0, 1.0), (0.25, EVAL_0, 1.0),
+                                                  (0.3, EVAL_2, 1.0), (2.8, eval_3, 1.0)],
+                            data_dir)
+    for index, name in ((1, trainer_lib.CHECKPOINT), (2, trainer_lib.CHECKPOINT)):
+        (jump_black_box.evaluation_dir(directory, index) / "train" / name).write_bytes(b"")
+    (jump_black_box.evaluation_dir(directory, 1) / jump_black_box.RESULT).write_text(
+        json.dumps({**json.loads((jump_black_box.evaluation_dir(directory, 1) /
+                                  jump_black_box.RESULT).read_text()), "highest_cleared": 0.9}))
+    [strategy, other] = stage2.stage1_strategies(directory)
+    assert strategy.evaluations == (0, 1, 2) and strategy.representative == 0
+    assert other.evaluations == (3,) and other.representative == 3
+
+    def measure(where, run_dir, episodes, data_dir=None, **fields):
+        result = {**fields, "task": "highjump", "outcome": "failure", "reason": "fell",
+                  "highest_cleared": None, "feature": None}
+        (where / jump_black_box.RESULT).write_text(json.dumps(result))
+        return result
+    monkeypatch.setattr(jump_black_box, "measure", measure)
+    monkeypatch.setattr(train_commands, "train", _fake_training([]))
+    lines = []
+    stage2_search.run(directory, rounds=1, out=tmp_path / "out", echo=lines.append)
+    plan = json.loads((tmp_path / "out" / stage2_search.PLAN).read_text())
+    assert [(r["evaluation"], r["strategy"]) for r in plan["runs"]] == [(2, 0), (3, 1)]
+    assert (f"Stage-1 strategy 0: evaluation 0's policy is not in {directory}, so its rounds "
+            "start from evaluation 2's (bar 1.00 m)") in lines
+    assert not any("strategy 1:" in line for line in lines)
+
+
 def test_stage2_needs_a_jump_search_with_a_success(tmp_path, data_dir, capsys):
     failed = make_search(tmp_path / "failed", [None], data_dir)
     with pytest.raises(SearchError, match="no evaluation of the search succeeded"):

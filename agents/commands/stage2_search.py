@@ -20,7 +20,8 @@ a third of an evaluation = the ten evaluations of the search.
 
 Each Stage-1 strategy (`agents.discovery.stage2.stage1_strategies`: the search's successful
 evaluations grouped as its own summary groups them) starts its rounds from its representative,
-the evaluation that cleared the highest bar: each round is a `takeoff train` run from that
+the evaluation that cleared the highest bar (or, when that one's trained policy is not in the
+search directory, the one of the strategy's evaluations with a policy that did): each round is a `takeoff train` run from that
 evaluation's config (its take-off state, networks and PPO settings) with a `[novelty]` section
 warm-starting from its Stage-1 policy. The features a round is novel against (`known`) are those
 of every policy the search has found when the round starts: every successful Stage-1
@@ -114,8 +115,9 @@ def _plan(search_dir, out, search_config, iterations, rounds, echo) -> dict:
         run_settings = _stage1_sections(search_dir, found[0].representative)["run"]
         per_iteration = run_settings["envs"] * run_settings["steps_per_iteration"]
         iterations = math.ceil(search_config["jump"]["samples"] / ROUND_SHARE / per_iteration)
-    runs = [{"evaluation": s.representative, "strategy": s.label, "round": r}
-            for r in range(rounds) for s in found]
+    starts = [_start_evaluation(search_dir, strategy, echo) for strategy in found]
+    runs = [{"evaluation": start, "strategy": s.label, "round": r}
+            for r in range(rounds) for s, start in zip(found, starts)]
     plan = {"search": str(search_dir), "rounds": rounds, "iterations": iterations,
             "runs": [{"index": i, **entry} for i, entry in enumerate(runs)]}
     check_writable(out, what="Stage 2's runs")
@@ -124,6 +126,29 @@ def _plan(search_dir, out, search_config, iterations, rounds, echo) -> dict:
          f" × {rounds} round{'s' if rounds > 1 else ''} of {iterations} iteration"
          f"{'s' if iterations > 1 else ''} → {out}")
     return plan
+
+
+def _start_evaluation(search_dir, strategy, echo) -> int:
+    """The evaluation a Stage-1 strategy's rounds warm-start from: its representative (the
+    highest bar, the first of equals), unless that one's trained policy is not in `search_dir`
+    — a search carried from machine to machine keeps its results, not its policies — and another
+    of the strategy's evaluations has one: then the one of those that cleared the highest bar.
+    With no policy anywhere it stays the representative, and its round's warm start names what
+    is missing."""
+    def has_policy(index):
+        checkpoint = (jump_black_box.evaluation_dir(search_dir, index) / jump_black_box.TRAIN
+                      / trainer_lib.CHECKPOINT)
+        return checkpoint.exists() or previous_path(checkpoint).exists()
+    with_policy = [i for i in strategy.evaluations if has_policy(i)]
+    if has_policy(strategy.representative) or not with_policy:
+        return strategy.representative
+    cleared = {i: stage2.stage1_result(search_dir, i).get("highest_cleared") or 0.0
+               for i in with_policy}
+    start = max(with_policy, key=lambda i: (cleared[i], -i))
+    echo(f"Stage-1 strategy {strategy.label}: evaluation {strategy.representative}'s policy is "
+         f"not in {search_dir}, so its rounds start from evaluation {start}'s "
+         f"(bar {cleared[start]:.2f} m)")
+    return start
 
 
 def _stage1_sections(search_dir, evaluation) -> dict:
