@@ -21,16 +21,16 @@ a third of an evaluation = the ten evaluations of the search.
 Each Stage-1 strategy (`agents.discovery.stage2.stage1_strategies`: the search's successful
 evaluations grouped as its own summary groups them) starts its rounds from its representative,
 the evaluation that cleared the highest bar (or, when that one's trained policy is not in the
-search directory, the one of the strategy's evaluations with a policy that did): each round is a `takeoff train` run from that
-evaluation's config (its take-off state, networks and PPO settings) with a `[novelty]` section
-warm-starting from its Stage-1 policy. The features a round is novel against (`known`) are those
-of every policy the search has found when the round starts: every successful Stage-1
-evaluation — not only the representatives: Stage 1 groups by the 1-D up angle alone, and two
-evaluations of one group may cross the bar in different 3-D orientations — and every successful
-Stage-2 round before it. So Π grows as in §3.5.2, and two rounds that find the same new strategy
-do not both count it as novel. The rounds therefore run one after another, round by round (the
-first round of every strategy, then the second, …), so a Stage 2 stopped early has tried every
-strategy.
+search directory, the one of the strategy's evaluations with a policy that did): each round is
+a `takeoff train` run from that evaluation's config (its take-off state, networks and PPO
+settings) with a `[novelty]` section warm-starting from its Stage-1 policy. The features a
+round is novel against (`known`) are those of every policy the search has found when the round
+starts: every successful Stage-1 evaluation — not only the representatives: Stage 1 groups by
+the 1-D up angle alone, and two evaluations of one group may cross the bar in different 3-D
+orientations — and every successful Stage-2 round before it. So Π grows as in §3.5.2, and two
+rounds that find the same new strategy do not both count it as novel. The rounds therefore run
+one after another, round by round (the first round of every strategy, then the second, …), so a
+Stage 2 stopped early has tried every strategy.
 
 Files, under OUT (default SEARCH/stage2):
     plan.json        the rounds (index, Stage-1 evaluation, its strategy, round), fixed at the
@@ -54,7 +54,6 @@ import math
 from pathlib import Path
 
 from agents import config as config_io
-from agents.checkpoint import previous_path
 from agents.commands import train_commands
 from agents.config import ConfigError
 from agents.discovery import jump_black_box, stage2
@@ -136,9 +135,8 @@ def _start_evaluation(search_dir, strategy, echo) -> int:
     With no policy anywhere it stays the representative, and its round's warm start names what
     is missing."""
     def has_policy(index):
-        checkpoint = (jump_black_box.evaluation_dir(search_dir, index) / jump_black_box.TRAIN
-                      / trainer_lib.CHECKPOINT)
-        return checkpoint.exists() or previous_path(checkpoint).exists()
+        return trainer_lib.has_checkpoint(jump_black_box.evaluation_dir(search_dir, index)
+                                          / jump_black_box.TRAIN)
     with_policy = [i for i in strategy.evaluations if has_policy(i)]
     if has_policy(strategy.representative) or not with_policy:
         return strategy.representative
@@ -192,8 +190,7 @@ def _run_round(search_dir, out, entry, plan, episodes, data_dir, echo):
     echo(f"[stage2 {index:03d}] round {entry['round'] + 1}/{plan['rounds']} from evaluation "
          f"{entry['evaluation']} (Stage-1 strategy {entry['strategy']})")
     say = jump_black_box._prefixed(f"  [stage2 {index:03d}] ")
-    checkpoint = run_dir / trainer_lib.CHECKPOINT
-    if checkpoint.exists() or previous_path(checkpoint).exists():
+    if trainer_lib.has_checkpoint(run_dir):
         train_commands.train(resume=run_dir, data_dir=data_dir, echo=say)   # (a finished one
     else:                                                                    # trains no more)
         config_path = directory / RUN_CONFIG

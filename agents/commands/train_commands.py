@@ -198,7 +198,7 @@ def train_or_resume(config_path, run_dir, overrides=(), data_dir=None, echo=prin
     rule every command that runs trainings as parts of its own work follows (a sweep's members,
     a search's evaluations), so a killed one loses at most one checkpoint interval."""
     run_dir = Path(run_dir)
-    if not (run_dir / trainer_lib.CHECKPOINT).exists():
+    if not trainer_lib.has_checkpoint(run_dir):
         return train(config_path, run_dir, overrides, data_dir=data_dir, echo=echo)
     config = load_run_config(run_dir)
     records = trainer_lib.read_metrics(run_dir)

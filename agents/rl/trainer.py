@@ -379,6 +379,13 @@ def save_checkpoint(state: TrainState, run_dir):
                               f"{kept}") from None
 
 
+def has_checkpoint(run_dir) -> bool:
+    """Whether `run_dir` holds a checkpoint to resume from: the newest, or the one before it
+    (which `load_checkpoint` falls back to)."""
+    path = Path(run_dir) / CHECKPOINT
+    return path.exists() or previous_path(path).exists()
+
+
 def load_checkpoint(template: TrainState, run_dir, echo=print) -> TrainState:
     """The newest intact checkpoint read into the structure of `template` (a fresh
     `Trainer.init()` of the same config): a damaged checkpoint is passed over for the one before
