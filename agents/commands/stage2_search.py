@@ -140,12 +140,9 @@ def _start_evaluation(search_dir, strategy, echo) -> int:
     with_policy = [i for i in strategy.evaluations if has_policy(i)]
     if has_policy(strategy.representative) or not with_policy:
         return strategy.representative
-    cleared = {i: stage2.stage1_result(search_dir, i).get("highest_cleared") or 0.0
-               for i in with_policy}
-    start = max(with_policy, key=lambda i: (cleared[i], -i))
+    start, bar = stage2.highest_bar(search_dir, with_policy)
     echo(f"Stage-1 strategy {strategy.label}: evaluation {strategy.representative}'s policy is "
-         f"not in {search_dir}, so its rounds start from evaluation {start}'s "
-         f"(bar {cleared[start]:.2f} m)")
+         f"not in {search_dir}, so its rounds start from evaluation {start}'s (bar {bar:.2f} m)")
     return start
 
 

@@ -213,7 +213,7 @@ def read_search(search_dir):
     return config, records[:config["search"]["budget"]]
 
 
-def stage1_result(search_dir, index) -> dict:
+def _stage1_result(search_dir, index) -> dict:
     """The result.json of a Stage-1 evaluation the log says succeeded."""
     directory = jump_black_box.evaluation_dir(search_dir, index)
     result = jump_black_box.read_result(directory)
@@ -251,7 +251,7 @@ def found_policies(search_dir, stage2_dir=None) -> list[Policy]:
     policies = []
     for record in records:
         if record["feature"] is not None:
-            result = stage1_result(search_dir, record["index"])
+            result = _stage1_result(search_dir, record["index"])
             policies.append(_policy(f"evaluation {record['index']}", result,
                                     jump_black_box.evaluation_dir(search_dir, record["index"])))
     stage2_dir = Path(search_dir) / STAGE2 if stage2_dir is None else Path(stage2_dir)
@@ -270,11 +270,17 @@ def stage1_strategies(search_dir) -> list[Stage1Strategy]:
     found = []
     for label in range(int(labels.max(initial=-1)) + 1):
         members = tuple(r["index"] for r, l in zip(records, labels) if l == label)
-        cleared = {i: stage1_result(search_dir, i).get("highest_cleared") or 0.0
-                   for i in members}
-        best = max(members, key=lambda i: (cleared[i], -i))
-        found.append(Stage1Strategy(label, members, best))
+        found.append(Stage1Strategy(label, members, highest_bar(search_dir, members)[0]))
     return found
+
+
+def highest_bar(search_dir, evaluations) -> tuple[int, float]:
+    """(the one of the successful Stage-1 `evaluations` that cleared the highest bar, the first
+    of equals; that bar)."""
+    cleared = {i: _stage1_result(search_dir, i).get("highest_cleared") or 0.0
+               for i in evaluations}
+    best = max(evaluations, key=lambda i: (cleared[i], -i))
+    return best, cleared[best]
 
 
 def is_novel(feature, known, threshold, distance="rotation") -> tuple[bool, int, float]:
