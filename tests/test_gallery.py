@@ -13,6 +13,7 @@ import html
 import json
 import math
 import re
+import shutil
 
 import jax.numpy as jnp
 import numpy as np
@@ -221,6 +222,19 @@ def test_pictures_are_not_redrawn_and_the_search_is_only_read(search_dir, writte
     gallery.write_gallery(search_dir, out, data_dir, echo=lambda *_: None)
     assert {p: p.stat().st_mtime_ns for p in before} == before
     assert sorted(p.relative_to(search_dir) for p in search_dir.rglob("*")) == listing
+
+
+def test_an_evaluation_whose_training_run_is_gone_is_drawn_with_another_ones_config(
+        search_dir, data_dir, tmp_path):
+    carried = tmp_path / "carried"                 # results and episodes, no training run
+    shutil.copytree(search_dir, carried)
+    shutil.rmtree(jump_black_box.evaluation_dir(carried, 1) / jump_black_box.TRAIN)
+    out = tmp_path / "out"
+    page = gallery.write_gallery(carried, out, data_dir, echo=lambda *_: None).read_text()
+    card = _card(page, "eval-001")
+    assert "no pictures" not in card
+    for name in ("001_peak.png", "001.gif"):
+        assert f"gallery/{name}" in card and (out / "gallery" / name).stat().st_size > 0
 
 
 def test_a_directory_that_is_not_a_search_is_named(tmp_path, capsys):

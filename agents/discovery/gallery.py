@@ -29,7 +29,8 @@ so that a Stage-2 run that repeats a Stage-1 strategy says which. The page says 
 it used and why.
 
 Pictures are drawn from `episode.npz` (the poses of one evaluated episode) with the model and
-world of the evaluation's training config — built with plain PD actions, since neither depends
+world of the evaluation's training config (of another evaluation of the search when its own
+training run is gone) — built with plain PD actions, since neither depends
 on the action space and a P-VAE's decoder is not needed to draw — and redrawn only when the
 episode is newer than the picture (`--redraw` draws them all again). Drawing needs the reference
 data (`--data-dir`); without it the command fails saying so. GIFs keep at most `GIF_FRAMES`
@@ -355,9 +356,26 @@ def _fresh(picture: Path, source: Path) -> bool:
     return picture.exists() and picture.stat().st_mtime >= source.stat().st_mtime
 
 
-def draw(evaluation: Evaluation, images: Path, data_dir=None, echo=print, redraw=False):
+def _drawing_run(evaluation: Evaluation, sections) -> Path:
+    """The training run whose config draws `evaluation`: its own, or, when that is gone (a
+    search carried between machines keeps its episodes and results, not its training runs),
+    the first of the search's evaluations that still has one. One search's evaluations train
+    from one config and differ only in their take-off x, which `drawing_env` leaves out."""
+    own = evaluation.directory / jump_black_box.TRAIN
+    if _train_config(evaluation.directory) is not None:
+        return own
+    for section in sections:
+        for other in section.evaluations:
+            if other.directory is not None and _train_config(other.directory) is not None:
+                return other.directory / jump_black_box.TRAIN
+    return own
+
+
+def draw(evaluation: Evaluation, images: Path, data_dir=None, echo=print, redraw=False,
+         sections=()):
     """Draw (or keep, when newer than its episode, unless `redraw`) an evaluation's peak views
-    and GIF in `images`; set their links, or a note saying why there are none."""
+    and GIF in `images`; set their links, or a note saying why there are none. `sections`, the
+    search's, lend a training config when the evaluation's own is gone (`_drawing_run`)."""
     from agents.discovery import pictures
     from agents.commands.cli import run_errors
     from agents.datadir import DataDirError
@@ -371,7 +389,7 @@ def draw(evaluation: Evaluation, images: Path, data_dir=None, echo=print, redraw
     peak, gif = images / f"{evaluation.stem}_peak.png", images / f"{evaluation.stem}.gif"
     if redraw or not (_fresh(peak, episode) and _fresh(gif, episode)):
         try:
-            env = drawing_env(evaluation.directory / jump_black_box.TRAIN, data_dir)
+            env = drawing_env(_drawing_run(evaluation, sections), data_dir)
         except DataDirError:
             raise                      # no pictures at all: the user names the data directory
         except run_errors() as error:
@@ -722,7 +740,7 @@ def write_gallery(search_dir, out_dir=None, data_dir=None, echo=print, redraw=Fa
     images.mkdir(parents=True, exist_ok=True)
     for section in sections:
         for evaluation in section.evaluations:
-            draw(evaluation, images, data_dir, echo, redraw)
+            draw(evaluation, images, data_dir, echo, redraw, sections)
     sheet = None
     if any(ev.directory is not None for s in sections for ev in s.evaluations):
         contact_sheet(sections, out_dir, images / CONTACT_SHEET)
