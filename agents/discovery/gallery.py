@@ -356,26 +356,25 @@ def _fresh(picture: Path, source: Path) -> bool:
     return picture.exists() and picture.stat().st_mtime >= source.stat().st_mtime
 
 
-def _drawing_run(evaluation: Evaluation, sections) -> Path:
-    """The training run whose config draws `evaluation`: its own, or, when that is gone (a
-    search carried between machines keeps its episodes and results, not its training runs),
-    the first of the search's evaluations that still has one. One search's evaluations train
-    from one config and differ only in their take-off x, which `drawing_env` leaves out."""
-    own = evaluation.directory / jump_black_box.TRAIN
-    if _train_config(evaluation.directory) is not None:
-        return own
-    for section in sections:
-        for other in section.evaluations:
-            if other.directory is not None and _train_config(other.directory) is not None:
-                return other.directory / jump_black_box.TRAIN
-    return own
+def _any_training_run(sections) -> Path | None:
+    """The training run of the first of a search's evaluations that still has one (None when
+    none has): it draws the evaluations whose own run is gone (a search carried between
+    machines keeps its episodes and results, not its training runs). One search's evaluations
+    train from one config and differ only in their take-off x, which `drawing_env` leaves out."""
+    runs = (evaluation.directory / jump_black_box.TRAIN for section in sections
+            for evaluation in section.evaluations if evaluation.directory is not None)
+    return next((run for run in runs if _has_config(run)), None)
+
+
+def _has_config(run: Path) -> bool:
+    return (run / "config.json").exists()
 
 
 def draw(evaluation: Evaluation, images: Path, data_dir=None, echo=print, redraw=False,
-         sections=()):
+         stand_in: Path | None = None):
     """Draw (or keep, when newer than its episode, unless `redraw`) an evaluation's peak views
-    and GIF in `images`; set their links, or a note saying why there are none. `sections`, the
-    search's, lend a training config when the evaluation's own is gone (`_drawing_run`)."""
+    and GIF in `images`; set their links, or a note saying why there are none. `stand_in`, a
+    training run of the same search (`_any_training_run`), draws it when its own run is gone."""
     from agents.discovery import pictures
     from agents.commands.cli import run_errors
     from agents.datadir import DataDirError
@@ -389,7 +388,10 @@ def draw(evaluation: Evaluation, images: Path, data_dir=None, echo=print, redraw
     peak, gif = images / f"{evaluation.stem}_peak.png", images / f"{evaluation.stem}.gif"
     if redraw or not (_fresh(peak, episode) and _fresh(gif, episode)):
         try:
-            env = drawing_env(_drawing_run(evaluation, sections), data_dir)
+            run = evaluation.directory / jump_black_box.TRAIN
+            if stand_in is not None and not _has_config(run):
+                run = stand_in
+            env = drawing_env(run, data_dir)
         except DataDirError:
             raise                      # no pictures at all: the user names the data directory
         except run_errors() as error:
@@ -738,9 +740,10 @@ def write_gallery(search_dir, out_dir=None, data_dir=None, echo=print, redraw=Fa
     images = out_dir / IMAGES
     check_writable(images, what="the gallery")
     images.mkdir(parents=True, exist_ok=True)
+    stand_in = _any_training_run(sections)
     for section in sections:
         for evaluation in section.evaluations:
-            draw(evaluation, images, data_dir, echo, redraw, sections)
+            draw(evaluation, images, data_dir, echo, redraw, stand_in)
     sheet = None
     if any(ev.directory is not None for s in sections for ev in s.evaluations):
         contact_sheet(sections, out_dir, images / CONTACT_SHEET)
