@@ -508,6 +508,41 @@ def test_a_strategy_whose_representative_lost_its_policy_starts_from_one_that_ha
     assert not any("strategy 1:" in line for line in lines)
 
 
+def test_stage2_sigma_makes_every_round_explore_at_that_constant_sigma(tmp_path, data_dir,
+                                                                      monkeypatch, capsys):
+    """--sigma: each round's config explores at that σ from its first iteration to its last
+    (sigma_start = sigma_end), the plan keeps it, and a resume asking for another is refused.
+    Without it a round keeps Stage 1's σ schedule."""
+    directory = make_search(tmp_path / "search", [(0.2, EVAL_0, 1.0)], data_dir)
+    stage1 = train_commands.load_run_config(jump_black_box.evaluation_dir(directory, 0) / "train")
+    assert stage1.ppo.sigma_start != stage1.ppo.sigma_end       # an annealed schedule
+
+    def measure(where, run_dir, episodes, data_dir=None, **fields):
+        result = {**fields, "task": "highjump", "outcome": "failure", "reason": "fell",
+                  "highest_cleared": None, "feature": None}
+        (where / jump_black_box.RESULT).write_text(json.dumps(result))
+        return result
+    monkeypatch.setattr(jump_black_box, "measure", measure)
+    monkeypatch.setattr(train_commands, "train", _fake_training([]))
+    lines = []
+    stage2_search.run(directory, rounds=2, out=tmp_path / "noisy", sigma=0.4, echo=lines.append)
+    assert any(line.endswith(f"of 1 iteration at σ 0.4 → {tmp_path / 'noisy'}") for line in lines)
+    assert json.loads((tmp_path / "noisy" / stage2_search.PLAN).read_text())["sigma"] == 0.4
+    for index in (0, 1):
+        ppo = train_commands.load_run_config(tmp_path / "noisy" / f"{index:03d}" / "train").ppo
+        assert (ppo.sigma_start, ppo.sigma_end) == (0.4, 0.4)
+        assert ppo.sigma_horizon == stage1.ppo.sigma_horizon
+    with pytest.raises(ConfigError, match="holds a Stage 2 of 2 rounds × 1 iterations at σ "
+                                          "0.4, and --sigma 0.2 asks for another"):
+        stage2_search.run(directory, out=tmp_path / "noisy", sigma=0.2, echo=QUIET)
+    stage2_search.run(directory, rounds=1, out=tmp_path / "annealed", echo=QUIET)
+    ppo = train_commands.load_run_config(tmp_path / "annealed" / "000" / "train").ppo
+    assert (ppo.sigma_start, ppo.sigma_end) == (stage1.ppo.sigma_start, stage1.ppo.sigma_end)
+    for bad in ("0", "-0.1", "nan", "inf", "wide"):
+        code, _, err = run_cli(["stage2", str(directory), "--sigma", bad], capsys)
+        assert code != 0 and f"must be a finite number > 0; got '{bad}'" in err
+
+
 def test_stage2_needs_a_jump_search_with_a_success(tmp_path, data_dir, capsys):
     failed = make_search(tmp_path / "failed", [None], data_dir)
     with pytest.raises(SearchError, match="no evaluation of the search succeeded"):

@@ -266,7 +266,8 @@ def _cmd_stage2(args):
     from bds.search import SearchError
 
     try:
-        stage2_search.run(args.search_dir, args.iterations, args.rounds, args.out, args.data_dir)
+        stage2_search.run(args.search_dir, args.iterations, args.rounds, args.out, args.data_dir,
+                          sigma=args.sigma)
     except (*run_errors(), SearchError) as error:
         raise SystemExit(f"takeoff stage2: {error}")
     except KeyboardInterrupt:
@@ -281,6 +282,17 @@ def _positive_int(text):
         value = 0
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a whole number ≥ 1; got {text!r}")
+    return value
+
+
+def _positive_float(text):
+    """An argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = 0.0
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0; got {text!r}")
     return value
 
 
@@ -328,6 +340,8 @@ def build_parser():
                    "a third of one Stage-1 evaluation's samples)")
     p.add_argument("--rounds", type=_positive_int, help="rounds of novel policy search per "
                    "strategy (default 5, the thesis's five)")
+    p.add_argument("--sigma", type=_positive_float, help="explore every round with this "
+                   "constant σ (default: go on with the Stage-1 policy's annealed σ)")
     p.add_argument("--out", help="where the rounds go (default SEARCH_DIR/stage2)")
     p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_stage2)

@@ -17,6 +17,14 @@ and give it a third of a Stage-1 evaluation's budget. Hence the defaults:
                   (163 for the 2,000,000 of the first two searches in docs/discovery).
 With them Stage 2 costs what the thesis's did relative to Stage 1: six strategies × 5 rounds ×
 a third of an evaluation = the ten evaluations of the search.
+    --sigma       none: a round's exploration noise σ goes on from where its Stage-1 policy
+                  left it (`agents.discovery.stage2.warm_start`); given, every round explores
+                  with this constant σ instead (its config's ppo.sigma_start = sigma_end).
+                  Why: σ anneals with samples (`agents.rl.networks.sigma_at`, 0.5 → 0.1 over
+                  10 M), so a policy trained to z_freeze = 1.0 m (8.4 M samples) hands Stage 2
+                  a σ of 0.17 that falls to 0.10 in its round, and neither 1.0 m round of
+                  docs/discovery left its source's strategy; the 0.6 m policies (2 M samples)
+                  explored at σ ≈ 0.43 and four of their five rounds found a novel one.
 
 Each Stage-1 strategy (`agents.discovery.stage2.stage1_strategies`: the search's successful
 evaluations grouped as its own summary groups them) starts its rounds from its representative,
@@ -34,7 +42,7 @@ Stage 2 stopped early has tried every strategy.
 
 Files, under OUT (default SEARCH/stage2):
     plan.json        the rounds (index, Stage-1 evaluation, its strategy, round), fixed at the
-                     first start, with the rounds and iterations
+                     first start, with the rounds, iterations and σ
     NNN/stage2.toml  the round's training config (written before it trains; its known features
                      fixed then), NNN/known.json which policy each known feature is
     NNN/train/       its `takeoff train` run directory
@@ -67,14 +75,15 @@ ROUNDS = 5                  # "five DRL iterations" (§3.7.1), as rounds
 ROUND_SHARE = 3             # a round's samples: a third of one Stage-1 evaluation's budget
 
 
-def run(search_dir, iterations=None, rounds=None, out=None, data_dir=None, echo=print) -> list:
+def run(search_dir, iterations=None, rounds=None, out=None, data_dir=None, echo=print,
+        sigma=None) -> list:
     """Run (or resume) Stage 2 over the search in `search_dir`; print and return the summary
-    (a dict per round)."""
+    (a dict per round). `sigma`: the rounds' constant exploration noise (None: Stage 1's)."""
     search_dir = Path(search_dir)
     out = search_dir / stage2.STAGE2 if out is None else Path(out)
     search_config, records = stage2.read_search(search_dir)
     _start_devices(search_dir, records)
-    plan = _plan(search_dir, out, search_config, iterations, rounds, echo)
+    plan = _plan(search_dir, out, search_config, iterations, rounds, sigma, echo)
     for entry in plan["runs"]:
         _run_round(search_dir, out, entry, plan, search_config["jump"]["episodes"], data_dir,
                    echo)
@@ -91,18 +100,19 @@ def _start_devices(search_dir, records):
             return
 
 
-def _plan(search_dir, out, search_config, iterations, rounds, echo) -> dict:
+def _plan(search_dir, out, search_config, iterations, rounds, sigma, echo) -> dict:
     """The stored plan of a Stage 2 in `out`, or a new one written there."""
     path = out / PLAN
     if path.exists():
         plan = config_io.read_stored(path)
         for flag, given, stored in (("--iterations", iterations, plan["iterations"]),
-                                    ("--rounds", rounds, plan["rounds"])):
+                                    ("--rounds", rounds, plan["rounds"]),
+                                    ("--sigma", sigma, plan.get("sigma"))):
             if given is not None and given != stored:
                 raise ConfigError(f"{out} holds a Stage 2 of {plan['rounds']} rounds × "
-                                  f"{plan['iterations']} iterations, and {flag} {given} asks for "
-                                  "another: give the same (or none) to resume it, or another "
-                                  "--out")
+                                  f"{plan['iterations']} iterations{_with_sigma(plan)}, and "
+                                  f"{flag} {given} asks for another: give the same (or none) to "
+                                  "resume it, or another --out")
         echo(f"resuming Stage 2 in {out}")
         return plan
     found = stage2.stage1_strategies(search_dir)
@@ -118,13 +128,18 @@ def _plan(search_dir, out, search_config, iterations, rounds, echo) -> dict:
     runs = [{"evaluation": start, "strategy": s.label, "round": r}
             for r in range(rounds) for s, start in zip(found, starts)]
     plan = {"search": str(search_dir), "rounds": rounds, "iterations": iterations,
-            "runs": [{"index": i, **entry} for i, entry in enumerate(runs)]}
+            "sigma": sigma, "runs": [{"index": i, **entry} for i, entry in enumerate(runs)]}
     check_writable(out, what="Stage 2's runs")
     _write_json(path, plan)
     echo(f"Stage 2 of {search_dir}: {len(found)} Stage-1 strateg{'y' if len(found) == 1 else 'ies'}"
          f" × {rounds} round{'s' if rounds > 1 else ''} of {iterations} iteration"
-         f"{'s' if iterations > 1 else ''} → {out}")
+         f"{'s' if iterations > 1 else ''}{_with_sigma(plan)} → {out}")
     return plan
+
+
+def _with_sigma(plan) -> str:
+    sigma = plan.get("sigma")          # (a plan written before --sigma existed has none)
+    return "" if sigma is None else f" at σ {sigma:g}"
 
 
 def _start_evaluation(search_dir, strategy, echo) -> int:
@@ -151,15 +166,17 @@ def _stage1_sections(search_dir, evaluation) -> dict:
                                  / jump_black_box.TRAIN / train_commands.CONFIG)
 
 
-def stage2_sections(stage1_run, known, iterations) -> dict:
+def stage2_sections(stage1_run, known, iterations, sigma=None) -> dict:
     """The config (nested dicts) of a Stage-2 round from the Stage-1 run in `stage1_run`: its
-    settings (task, take-off state, networks, PPO), `iterations` iterations with no stop
-    difficulty or time limit, and a [novelty] section warm-starting from it, novel against the
-    rotation vectors `known`. The warm start is written as `stage1_run` is given (a relative
+    settings (task, take-off state, networks, PPO; with a constant exploration σ = `sigma`
+    unless that is None), `iterations` iterations with no stop difficulty or time limit, and a
+    [novelty] section warm-starting from it, novel against the rotation vectors `known`. The warm start is written as `stage1_run` is given (a relative
     path stays relative to the working directory, as the config's P-VAE path is), not resolved
     to this machine's absolute path."""
     sections = config_io.read_stored(Path(stage1_run) / train_commands.CONFIG)
     sections["run"].update(iterations=iterations, stop_difficulty=0.0, time_limit_minutes=0.0)
+    if sigma is not None:
+        sections["ppo"].update(sigma_start=sigma, sigma_end=sigma)
     sections["novelty"] = {"warm_start": str(Path(stage1_run)),
                            "known": [[float(v) for v in f] for f in known],
                            "threshold": stage2.NoveltySettings.threshold,
@@ -198,7 +215,7 @@ def _run_round(search_dir, out, entry, plan, episodes, data_dir, echo):
             _write_json(directory / KNOWN, [{"policy": p.name, "cross_rotvec": p.cross_rotvec}
                                             for p in known])
             sections = stage2_sections(stage1_run, [p.cross_rotvec for p in known],
-                                       plan["iterations"])
+                                       plan["iterations"], plan.get("sigma"))
             write_text_atomic(config_path, f"# Stage 2 (takeoff stage2), round "
                               f"{entry['round'] + 1} from {stage1_run}\n" + to_toml(sections))
         train_commands.train(config_path, run_dir, data_dir=data_dir, echo=say)
