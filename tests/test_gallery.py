@@ -21,7 +21,7 @@ import pytest
 
 pytest.importorskip("matplotlib", reason="the render extra is part of the test extra")
 
-from agents.commands import cli, strategy_search, train_commands  # noqa: E402
+from agents.commands import cli, stage2_search, strategy_search, train_commands  # noqa: E402
 from agents.discovery import gallery, jump_black_box  # noqa: E402
 from agents.tasks import takeoff_state  # noqa: E402
 from bds import strategies  # noqa: E402
@@ -36,6 +36,7 @@ REASON = "the policy cleared 0 of 2 episodes at 0.50 m <b>& fell</b>"
 OUTCOMES = [REASON, (0.20, 1.00), (2.60, 0.80), (0.35, 1.10), "training"]
 IN_PROGRESS_BAR = 0.73
 STAGE2_ROTVECS = [[0.0, 0.0, 0.25], [2.0, 0.0, 0.0]]     # Stage 1's are [0, 0, up angle]
+OTHER_STAGE2 = "stage2_sigma"                               # `takeoff stage2 --out` elsewhere
 
 
 class StillTraining(Exception):
@@ -125,13 +126,17 @@ def search_dir(tmp_path_factory, data_dir):
         result.update(index=index, kind="novelty")
         result["feature"]["cross_rotvec"] = rotvec
         (stage2 / jump_black_box.RESULT).write_text(json.dumps(result))
+    # another Stage-2 directory (`takeoff stage2 --out`) whose one round is stage2/001 again
+    shutil.copytree(out / gallery.STAGE2 / "001", out / OTHER_STAGE2 / "000")
+    (out / OTHER_STAGE2 / stage2_search.PLAN).write_text("{}")
     return out
 
 
 @pytest.fixture(scope="module")
 def written(search_dir, data_dir, tmp_path_factory):
     out = tmp_path_factory.mktemp("gallery_out")
-    path = gallery.write_gallery(search_dir, out, data_dir, echo=lambda *_: None)
+    path = gallery.write_gallery(search_dir, out, data_dir, echo=lambda *_: None,
+                                 stage2_dirs=[search_dir / OTHER_STAGE2])
     return out, path.read_text()
 
 
@@ -256,3 +261,24 @@ def test_stage2_runs_are_grouped_with_the_stage1_policies_they_repeat(written):
     assert "repeats Stage-1 evaluation <a href='#eval-001'>001</a>, <a href='#eval-003'>003" \
         in repeats
     assert "novel" in _card(page, "s2-eval-001") and "repeats" not in _card(page, "s2-eval-001")
+
+
+def test_another_stage2_directory_has_its_own_section_named_by_it(search_dir, written):
+    out, page = written
+    assert f"Stage 2: novel policies ({OTHER_STAGE2})" in page
+    card = _card(page, f"{OTHER_STAGE2}-eval-000")
+    assert f"Stage 2 evaluation 000 ({OTHER_STAGE2})" in card
+    assert "novel" in card and "repeats" not in card            # as stage2/001, its copy
+    assert f"gallery/{OTHER_STAGE2}_000.gif" in card
+    assert (out / "gallery" / f"{OTHER_STAGE2}_000_peak.png").stat().st_size > 0
+    assert _card(page, "s2-eval-001") != card                   # SEARCH/stage2 still shown
+
+
+def test_a_stage2_directory_that_is_not_one_or_shares_a_name_is_named(search_dir, tmp_path):
+    with pytest.raises(SystemExit, match=f"takeoff gallery: {tmp_path} is not a Stage-2 "
+                                         "directory: it has no plan.json"):
+        cli.main(["gallery", str(search_dir), "--stage2", str(tmp_path)])
+    namesake = tmp_path / OTHER_STAGE2
+    shutil.copytree(search_dir / OTHER_STAGE2, namesake)
+    with pytest.raises(gallery.GalleryError, match=f"have one name, '{OTHER_STAGE2}'"):
+        gallery.read_search(search_dir, [search_dir / OTHER_STAGE2, namesake])

@@ -255,7 +255,7 @@ def _cmd_gallery(args):
 
     try:
         path = gallery.write_gallery(args.search_dir, args.out, args.data_dir,
-                                     redraw=args.redraw)
+                                     redraw=args.redraw, stage2_dirs=args.stage2)
     except gallery.errors() as error:
         raise SystemExit(f"takeoff gallery: {error}")
     print(f"wrote {path}")
@@ -424,6 +424,9 @@ def build_parser():
                                                 "(default: the search directory)")
     p.add_argument("--redraw", action="store_true",
                    help="draw every picture again (by default one newer than its episode is kept)")
+    p.add_argument("--stage2", metavar="DIR", action="append", default=[],
+                   help="also show the rounds of this `takeoff stage2 --out DIR` directory, in a "
+                        "section of their own (repeatable; SEARCH/stage2 is always shown)")
     p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_gallery)
     p = sub.add_parser("plot", help="draw a run's learning curve (learning_curve.png)")

@@ -17,7 +17,9 @@ One self-contained HTML page, `gallery.html`, beside a folder `gallery/` of the 
 - an evaluation without result.json yet is "in progress", with the bar its training has
   reached (train/metrics.jsonl); a planned one without a directory yet is "waiting";
 - Stage 2's evaluations (`SEARCH/stage2/NNN/`, the same files), when there are any, in a section
-  of their own, read by the same code.
+  of their own, read by the same code; and a section for each other `takeoff stage2` output
+  directory named with `--stage2 DIR` (e.g. the rounds of `takeoff stage2 --sigma S --out
+  SEARCH/stage2_sigma`), its evaluations named, linked and drawn with the directory's name.
 
 Which evaluations are the same strategy is `bds.strategies.group`, the rule `takeoff search`'s
 summary counts by: Stage 1 by the search's feature (the up angle at the bar crossing) with the
@@ -44,6 +46,7 @@ import functools
 import html
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -97,18 +100,39 @@ class Evaluation:
     notes: list = field(default_factory=list)      # why no pictures, why not counted, …
     repeats: list = field(default_factory=list)    # Stage 2: the Stage-1 evaluations it repeats
     success_probability: float | None = None       # the success model's chance when picked
+    source: str = ""                 # Stage 2 outside SEARCH/stage2: its directory's name
 
     @property
     def name(self) -> str:
-        return f"{'Stage 2 evaluation' if self.stage == 2 else 'Evaluation'} {self.index:03d}"
+        if self.stage == 1:
+            return f"Evaluation {self.index:03d}"
+        return f"Stage 2 evaluation {self.index:03d}" + (f" ({self.source})" if self.source
+                                                         else "")
 
     @property
     def anchor(self) -> str:
-        return f"{'s2-' if self.stage == 2 else ''}eval-{self.index:03d}"
+        """Its id in the page: eval-NNN, s2-eval-NNN, or SOURCE-eval-NNN (only letters,
+        digits, - and _ of the directory's name kept)."""
+        prefix = re.sub(r"[^A-Za-z0-9_-]", "-", self._prefix("s2"))
+        return f"{prefix}-eval-{self.index:03d}" if prefix else f"eval-{self.index:03d}"
 
     @property
     def stem(self) -> str:
-        return f"{'stage2_' if self.stage == 2 else ''}{self.index:03d}"
+        """Its pictures' file name without suffix: NNN, stage2_NNN or SOURCE_NNN."""
+        prefix = self._prefix(STAGE2)
+        return f"{prefix}_{self.index:03d}" if prefix else f"{self.index:03d}"
+
+    @property
+    def short_name(self) -> str:
+        """Its name on the contact sheet."""
+        prefix = self._prefix("S2")
+        return f"{prefix} {self.index:03d}" if prefix else f"{self.index:03d}"
+
+    def _prefix(self, stage2: str) -> str:
+        """What tells it apart from the evaluations of the other stages and Stage-2
+        directories: "" in Stage 1, `stage2` in SEARCH/stage2, the directory's name in
+        another."""
+        return "" if self.stage == 1 else self.source or stage2
 
 
 @dataclass
@@ -197,9 +221,11 @@ def _planned(log: Path) -> dict:
     return planned
 
 
-def read_search(search_dir) -> tuple[dict, list]:
-    """(the search's config, its sections: Stage 1 and, when there is a stage2/ folder, Stage
-    2). A GalleryError names what is missing from a directory that is not a search."""
+def read_search(search_dir, stage2_dirs=()) -> tuple[dict, list]:
+    """(the search's config, its sections: Stage 1; Stage 2 when there is a stage2/ folder;
+    and one Stage-2 section for each of `stage2_dirs`, other `takeoff stage2` output
+    directories). A GalleryError names what is missing from a directory that is not a search,
+    or not a Stage-2 directory."""
     search_dir = Path(search_dir)
     if not search_dir.is_dir():
         raise GalleryError(f"{search_dir} is not a directory; give the run directory of a "
@@ -216,10 +242,36 @@ def read_search(search_dir) -> tuple[dict, list]:
                            "black_box and [search] (is this a training run directory?)")
     stage1 = _stage1(search_dir, config)
     sections = [stage1]
-    stage2_dirs = _numbered_dirs(search_dir / STAGE2)
-    if stage2_dirs:
-        sections.append(_stage2(stage2_dirs, config, stage1))
+    rounds = _numbered_dirs(search_dir / STAGE2)
+    if rounds:
+        sections.append(_stage2(rounds, config, stage1))
+    for directory, source in _stage2_sources(search_dir, stage2_dirs):
+        sections.append(_stage2(_numbered_dirs(directory), config, stage1, source))
     return config, sections
+
+
+def _stage2_sources(search_dir: Path, stage2_dirs) -> list:
+    """[(directory, its name in the gallery)] of the Stage-2 directories asked for besides
+    SEARCH/stage2 (which is always shown, and is skipped here when named again). A
+    GalleryError names one that is not a `takeoff stage2` output directory, and two that
+    would share a name."""
+    from agents.commands import stage2_search
+    sources, default = {}, (search_dir / STAGE2).resolve()
+    for directory in map(Path, stage2_dirs):
+        if not (directory / stage2_search.PLAN).is_file():
+            raise GalleryError(f"{directory} is not a Stage-2 directory: it has no "
+                               f"{stage2_search.PLAN} (a `takeoff stage2 --out DIR` output "
+                               f"directory holds {stage2_search.PLAN} and its rounds NNN/)")
+        if directory.resolve() == default or directory.resolve() in sources:
+            continue
+        name = directory.resolve().name
+        clash = next((d for d, n in sources.items() if n == name), None)
+        if clash is not None or (name == STAGE2 and _numbered_dirs(search_dir / STAGE2)):
+            raise GalleryError(f"the Stage-2 directories {clash or search_dir / STAGE2} and "
+                               f"{directory} have one name, {name!r}, and their pictures "
+                               "would overwrite each other's: rename one of them")
+        sources[directory.resolve()] = name
+    return list(sources.items())
 
 
 def _stage1(search_dir: Path, config: dict) -> Section:
@@ -285,18 +337,20 @@ def _cross_rotvec(evaluation: Evaluation):
     return None
 
 
-def _stage2(dirs: dict, config: dict, stage1: Section) -> Section:
-    """The Stage-2 runs (SEARCH/stage2/NNN), grouped by the 3-D root orientation together
-    with the Stage-1 policies before them (those counted among the search's strategies), so
-    that a run that repeats a Stage-1 strategy says which."""
+def _stage2(dirs: dict, config: dict, stage1: Section, source: str = "") -> Section:
+    """The Stage-2 runs (SEARCH/stage2/NNN, or NNN of the Stage-2 directory named `source`),
+    grouped by the 3-D root orientation together with the Stage-1 policies before them (those
+    counted among the search's strategies), so that a run that repeats a Stage-1 strategy says
+    which."""
     evaluations = [_evaluation(2, index, path, "stage 2", None) for index, path in
                    sorted(dirs.items())]
     for evaluation in evaluations:
+        evaluation.source = source
         evaluation.feature = _cross_rotvec(evaluation)
         if evaluation.result is not None:
             evaluation.kind = str(evaluation.result.get("kind", "stage 2"))
     section = Section(
-        "Stage 2: novel policies", evaluations, strategies.ROTATION_THRESHOLD, "rotation",
+        f"Stage 2: novel policies{f' ({source})' if source else ''}", evaluations, strategies.ROTATION_THRESHOLD, "rotation",
         "the root's 3-D orientation where the centre of mass crosses the bar plane (a rotation "
         "vector)",
         "bds.strategies.ROTATION_THRESHOLD, the thesis's d_threshold = π/2 (§3.6.2), the "
@@ -440,7 +494,7 @@ def contact_sheet(sections, out_dir: Path, path: Path):
 
 def _caption(evaluation: Evaluation) -> str:
     """One line about an evaluation, for the contact sheet."""
-    name = f"{'S2 ' if evaluation.stage == 2 else ''}{evaluation.index:03d} {evaluation.kind}"
+    name = f"{evaluation.short_name} {evaluation.kind}"
     if evaluation.status == "success":
         height = (evaluation.result or {}).get("highest_cleared")
         up = ((evaluation.result or {}).get("feature") or {}).get("up_angle")
@@ -730,12 +784,14 @@ def page(search_dir, config: dict, sections: list, sheet: str | None) -> str:
             f"<h1>{heading}</h1>{about}{sections_html}{sheet_html}</body></html>\n")
 
 
-def write_gallery(search_dir, out_dir=None, data_dir=None, echo=print, redraw=False) -> Path:
-    """Write the gallery of the search in `search_dir` (see the module docstring) into
-    `out_dir` (default: the search directory); returns the page's path. `redraw` draws every
-    picture again, however new."""
+def write_gallery(search_dir, out_dir=None, data_dir=None, echo=print, redraw=False,
+                  stage2_dirs=()) -> Path:
+    """Write the gallery of the search in `search_dir` (see the module docstring), with the
+    Stage-2 directories `stage2_dirs` besides SEARCH/stage2, into `out_dir` (default: the
+    search directory); returns the page's path. `redraw` draws every picture again, however
+    new."""
     search_dir = Path(search_dir)
-    config, sections = read_search(search_dir)
+    config, sections = read_search(search_dir, stage2_dirs)
     out_dir = Path(out_dir) if out_dir is not None else search_dir
     images = out_dir / IMAGES
     check_writable(images, what="the gallery")
