@@ -7,6 +7,7 @@ summary). Float64 (conftest)."""
 import dataclasses
 import json
 import shutil
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -232,6 +233,9 @@ def one_strategy(tmp_path_factory, data_dir):
                   "raises": jnp.asarray(23, zeros.curriculum["raises"].dtype)}
     state = trainer_lib.TrainState(ppo, norm, zeros.runner, zeros.key, curriculum)
     trainer_lib.save_checkpoint(state, stage1_run)
+    (stage1_run / trainer_lib.METRICS).write_text(json.dumps(
+        {"iteration": 31, "samples": STAGE1_SAMPLES, "seconds": 60.0,
+         trainer_lib.DIFFICULTY: STAGE1_BAR}) + "\n")
     return directory, state
 
 
@@ -380,15 +384,21 @@ def test_stage2_trains_a_round_from_the_strategy_and_resumes_like_any_run(
 
 def _fake_training(calls):
     """A `train_commands.train` that trains nothing: it writes the run's config.json, a metrics
-    line and a checkpoint file, and records how it was called."""
+    line saying all its iterations are done and a checkpoint file, and records how it was
+    called."""
     def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=None,
               echo=print, cluster=None):
         calls.append(("resume", resume) if resume is not None else ("start", out_dir))
         if resume is None:
             config = train_commands.load_config(config_path, overrides)
-            out_dir.mkdir(parents=True)
+            out_dir.mkdir(parents=True, exist_ok=True)
             (out_dir / train_commands.CONFIG).write_text(json.dumps(config.sections()))
             (out_dir / trainer_lib.CHECKPOINT).write_bytes(b"")
+        run_dir = Path(resume or out_dir)
+        iterations = train_commands.load_run_config(run_dir).run.iterations
+        (run_dir / trainer_lib.METRICS).write_text(
+            json.dumps({"iteration": iterations, "samples": 16 * iterations, "seconds": 1.0})
+            + "\n")
         return None, None
     return train
 
@@ -398,7 +408,9 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
     """Two strategies × two rounds with the training and measurement stubbed: the rounds go
     round by round, each novel against every policy found before it (Stage 1's and the earlier
     rounds'), the summary says which are novel and which repeat what, and a rerun after a kill
-    skips finished rounds and resumes the one that was training."""
+    skips finished rounds and resumes the one that was training. The Stage-1 policies are not
+    there (a search carried from another machine): each is trained again first, once, with
+    the search's black box settings."""
     eval_3 = rotvec([1, 0, 0], 2.5)
     directory = make_search(tmp_path / "search", [(0.2, EVAL_0, 0.6), None, (0.3, EVAL_2, 0.73),
                                                   (2.8, eval_3, 0.55)], data_dir)
@@ -453,7 +465,18 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
     assert "4 rounds, 1 novel, 2 repeats, 1 failed" in lines[-5]
     assert lines[-4].startswith("000  round 1  from evaluation 2 (strategy 0)  NOVEL")
     assert json.loads((out / stage2_search.SUMMARY).read_text())[0]["novel"] is True
-    assert calls == [("start", out / f"{i:03d}" / "train") for i in range(4)]
+    stage1_runs = [jump_black_box.evaluation_dir(directory, e) / "train" for e in (2, 3)]
+    assert calls == [("start", stage1_runs[0]), ("start", out / "000" / "train"),
+                     ("start", stage1_runs[1]), ("start", out / "001" / "train"),
+                     ("start", out / "002" / "train"), ("start", out / "003" / "train")]
+    for evaluation, run_dir in zip((2, 3), stage1_runs):
+        assert (f"Stage-1 evaluation {evaluation}'s policy is not in {directory}: training it "
+                "again from its x with the search's settings") in "\n".join(lines)
+        retrained = train_commands.load_run_config(run_dir)      # the black box's overrides
+        assert list(retrained.task.takeoff) == json.loads((run_dir.parent / "result.json")
+                                                          .read_text())["x"]
+        assert retrained.run.iterations == 3                     # ⌈jump.samples 48 / 16⌉
+        assert retrained.run.stop_difficulty == retrained.task.z_freeze
 
     # Killed while round 003 trained (its checkpoint there, no result), after 002 had written
     # its config but before it trained: the rerun resumes 003, starts 002 from its config as
@@ -541,6 +564,17 @@ def test_stage2_sigma_makes_every_round_explore_at_that_constant_sigma(tmp_path,
     for bad in ("0", "-0.1", "nan", "inf", "wide"):
         code, _, err = run_cli(["stage2", str(directory), "--sigma", bad], capsys)
         assert code != 0 and f"must be a finite number > 0; got '{bad}'" in err
+
+
+def test_a_stage1_policy_trained_again_that_goes_nowhere_stops_stage2(tmp_path, data_dir,
+                                                                     monkeypatch):
+    """A Stage-1 policy trained again that the black box gives up on (its first training did
+    not) leaves Stage 2 nothing to start from: it stops saying so, before the round's config."""
+    directory = make_search(tmp_path / "search", [(0.2, EVAL_0, 1.0)], data_dir)
+    monkeypatch.setattr(jump_black_box.JumpBlackBox, "train", lambda self, run_dir, x: True)
+    with pytest.raises(SearchError, match="Stage-1 evaluation 0 trained again went nowhere"):
+        stage2_search.run(directory, rounds=1, out=tmp_path / "out", echo=QUIET)
+    assert not (tmp_path / "out" / "000" / stage2_search.RUN_CONFIG).exists()
 
 
 def test_stage2_needs_a_jump_search_with_a_success(tmp_path, data_dir, capsys):

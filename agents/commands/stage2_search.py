@@ -29,7 +29,12 @@ a third of an evaluation = the ten evaluations of the search.
 Each Stage-1 strategy (`agents.discovery.stage2.stage1_strategies`: the search's successful
 evaluations grouped as its own summary groups them) starts its rounds from its representative,
 the evaluation that cleared the highest bar (or, when that one's trained policy is not in the
-search directory, the one of the strategy's evaluations with a policy that did): each round is
+search directory, the one of the strategy's evaluations with a policy that did). When none of
+them has its policy here (a search carried between machines keeps results, not policies), or
+the one it has is a training stopped part way, the search's own black box trains it (again)
+before the round starts — the search's training config, overrides, budget and z_freeze, from
+the evaluation's x, resumed from its checkpoint if killed — and says so: an hour or more at
+z_freeze = 1.0 m. Each round is
 a `takeoff train` run from that evaluation's config (its take-off state, networks and PPO
 settings) with a `[novelty]` section warm-starting from its Stage-1 policy. The features a
 round is novel against (`known`) are those of every policy the search has found when the round
@@ -85,8 +90,7 @@ def run(search_dir, iterations=None, rounds=None, out=None, data_dir=None, echo=
     _start_devices(search_dir, records)
     plan = _plan(search_dir, out, search_config, iterations, rounds, sigma, echo)
     for entry in plan["runs"]:
-        _run_round(search_dir, out, entry, plan, search_config["jump"]["episodes"], data_dir,
-                   echo)
+        _run_round(search_dir, out, entry, plan, search_config, data_dir, echo)
     return summarise(search_dir, out, echo)
 
 
@@ -147,8 +151,8 @@ def _start_evaluation(search_dir, strategy, echo) -> int:
     highest bar, the first of equals), unless that one's trained policy is not in `search_dir`
     — a search carried from machine to machine keeps its results, not its policies — and another
     of the strategy's evaluations has one: then the one of those that cleared the highest bar.
-    With no policy anywhere it stays the representative, and its round's warm start names what
-    is missing."""
+    With no policy anywhere it stays the representative, whose policy `_stage1_policy` trains
+    again."""
     def has_policy(index):
         return trainer_lib.has_checkpoint(jump_black_box.evaluation_dir(search_dir, index)
                                           / jump_black_box.TRAIN)
@@ -194,7 +198,31 @@ def to_toml(sections) -> str:
     return "\n".join(lines)
 
 
-def _run_round(search_dir, out, entry, plan, episodes, data_dir, echo):
+def _stage1_policy(search_dir, search_config, index, data_dir, echo):
+    """Make sure Stage-1 evaluation `index` has its finished policy before a round warm-starts
+    from it: trained again, or resumed, by the search's own black box (see the module
+    docstring; nothing happens to a finished training). A policy trained again is a new
+    training from the same x; its result.json — what the search measured and logged, and the
+    feature the rounds are novel against — is kept as it was."""
+    directory = jump_black_box.evaluation_dir(search_dir, index)
+    run_dir = directory / jump_black_box.TRAIN
+    result = jump_black_box.read_result(directory)          # a success's (stage1_strategies)
+    settings = config_io.build(jump_black_box.JumpBlackBoxSettings, search_config["jump"],
+                               Path(search_dir) / "config.json", "jump.")
+    box = jump_black_box.JumpBlackBox(settings, Path(search_dir), data_dir)
+    if not trainer_lib.has_checkpoint(run_dir):
+        echo(f"Stage-1 evaluation {index}'s policy is not in {search_dir}: training it again from "
+             f"its x with the search's settings (its first training: "
+             f"{int(result.get('samples', 0)):,} samples, {result.get('minutes', 0.0):.0f} min)")
+    if box.train(run_dir, result["x"]):
+        raise SearchError(f"{run_dir}: Stage-1 evaluation {index} trained again went nowhere (at "
+                          f"most {settings.give_up_success:.0%} of its episodes succeeded after "
+                          f"{settings.give_up_samples:,} samples), unlike its first training, so "
+                          "Stage 2 has no policy to start from; delete the run directory to try "
+                          "again")
+
+
+def _run_round(search_dir, out, entry, plan, search_config, data_dir, echo):
     """One round: trained (or resumed), then measured; nothing when it has its result."""
     index = entry["index"]
     directory = out / f"{index:03d}"
@@ -209,6 +237,7 @@ def _run_round(search_dir, out, entry, plan, episodes, data_dir, echo):
     else:                                                                    # trains no more)
         config_path = directory / RUN_CONFIG
         if not config_path.exists():
+            _stage1_policy(search_dir, search_config, entry["evaluation"], data_dir, echo)
             known = stage2.found_policies(search_dir, out)
             stage1_run = (jump_black_box.evaluation_dir(search_dir, entry["evaluation"])
                           / jump_black_box.TRAIN)
@@ -221,7 +250,7 @@ def _run_round(search_dir, out, entry, plan, episodes, data_dir, echo):
         train_commands.train(config_path, run_dir, data_dir=data_dir, echo=say)
     config = train_commands.load_run_config(run_dir)
     result = jump_black_box.measure(
-        directory, run_dir, episodes, data_dir, index=index,
+        directory, run_dir, search_config["jump"]["episodes"], data_dir, index=index,
         x=list(config.sections()[config.run.task]["takeoff"]), stage=2,
         evaluation=entry["evaluation"], strategy=entry["strategy"], round=entry["round"])
     echo(f"[stage2 {index:03d}] {_outcome(result)}")

@@ -117,12 +117,14 @@ class JumpBlackBox:
                                   f"{done['x']}, but this search's evaluation {index} is at "
                                   f"x = {x.tolist()}; the directory belongs to another search")
             return outcome(done)
-        gave_up = self._train(directory / TRAIN, x)
+        gave_up = self.train(directory / TRAIN, x)
         return outcome(self._measure(directory, index, x, gave_up))
 
-    def _train(self, run_dir: Path, x) -> bool:
-        """Train in up to two legs: to `give_up_samples`, and on to `samples` unless the first
-        leg's training is going nowhere (see the module docstring). Returns whether it gave up."""
+    def train(self, run_dir: Path, x) -> bool:
+        """Train the policy of x in `run_dir` in up to two legs: to `give_up_samples`, and on to
+        `samples` unless the first leg's training is going nowhere (see the module docstring);
+        resume it from its checkpoint, or do nothing when it is finished. Returns whether it gave
+        up."""
         from agents.commands import train_commands
         from agents.rl import trainer as trainer_lib
         settings = self.settings
