@@ -30,20 +30,19 @@ Each Stage-1 strategy (`agents.discovery.stage2.stage1_strategies`: the search's
 evaluations grouped as its own summary groups them) starts its rounds from its representative,
 the evaluation that cleared the highest bar (or, when that one's trained policy is not in the
 search directory, the one of the strategy's evaluations with a policy that did). When none of
-them has its policy here (a search carried between machines keeps results, not policies), or
-the one it has is a training stopped part way, the search's own black box trains it (again)
-before the round starts — the search's training config, overrides, budget and z_freeze, from
-the evaluation's x, resumed from its checkpoint if killed — and says so: an hour or more at
-z_freeze = 1.0 m. Each round is
-a `takeoff train` run from that evaluation's config (its take-off state, networks and PPO
-settings) with a `[novelty]` section warm-starting from its Stage-1 policy. The features a
-round is novel against (`known`) are those of every policy the search has found when the round
-starts: every successful Stage-1 evaluation — not only the representatives: Stage 1 groups by
-the 1-D up angle alone, and two evaluations of one group may cross the bar in different 3-D
-orientations — and every successful Stage-2 round before it. So Π grows as in §3.5.2, and two
-rounds that find the same new strategy do not both count it as novel. The rounds therefore run
-one after another, round by round (the first round of every strategy, then the second, …), so a
-Stage 2 stopped early has tried every strategy.
+them has its policy here (a search carried between machines keeps results, not policies), or the
+one it has is a training stopped part way, the search's own black box trains it (again) before
+the round starts — the search's training config, overrides, budget and z_freeze, from the
+evaluation's x, resumed from its checkpoint if killed — and says so: an hour or more at z_freeze
+= 1.0 m. Each round is a `takeoff train` run from that evaluation's config (its take-off state,
+networks and PPO settings) with a `[novelty]` section warm-starting from its Stage-1 policy. The
+features a round is novel against (`known`) are those of every policy the search has found when
+the round starts: every successful Stage-1 evaluation — not only the representatives: Stage 1
+groups by the 1-D up angle alone, and two evaluations of one group may cross the bar in
+different 3-D orientations — and every successful Stage-2 round before it. So Π grows as in
+§3.5.2, and two rounds that find the same new strategy do not both count it as novel. The rounds
+therefore run one after another, round by round (the first round of every strategy, then the
+second, …), so a Stage 2 stopped early has tried every strategy.
 
 Files, under OUT (default SEARCH/stage2):
     plan.json        the rounds (index, Stage-1 evaluation, its strategy, round), fixed at the

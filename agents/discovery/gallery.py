@@ -349,8 +349,9 @@ def _stage2(dirs: dict, config: dict, stage1: Section, source: str = "") -> Sect
         evaluation.feature = _cross_rotvec(evaluation)
         if evaluation.result is not None:
             evaluation.kind = str(evaluation.result.get("kind", "stage 2"))
+    title = "Stage 2: novel policies" + (f" ({source})" if source else "")
     section = Section(
-        f"Stage 2: novel policies{f' ({source})' if source else ''}", evaluations, strategies.ROTATION_THRESHOLD, "rotation",
+        title, evaluations, strategies.ROTATION_THRESHOLD, "rotation",
         "the root's 3-D orientation where the centre of mass crosses the bar plane (a rotation "
         "vector)",
         "bds.strategies.ROTATION_THRESHOLD, the thesis's d_threshold = π/2 (§3.6.2), the "
