@@ -461,8 +461,13 @@ def main(argv=None):
 
 
 def command_line():
-    """The `takeoff` executable: restart with the malloc tunables (jaxsim.allocator), then run."""
+    """The `takeoff` executable: restart with the malloc tunables (jaxsim.allocator), then run,
+    its output written line by line (an hour-long search or Stage 2 run with `nohup … > log`
+    shows its progress in the log as it goes, not a block at a time)."""
     allocator.restart_with_tunables()
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(line_buffering=True)
     return main()
 
 
