@@ -126,6 +126,7 @@ def search_dir(tmp_path_factory, data_dir):
         result.update(index=index, kind="novelty")
         result["feature"]["cross_rotvec"] = rotvec
         (stage2 / jump_black_box.RESULT).write_text(json.dumps(result))
+    (out / gallery.STAGE2 / stage2_search.PLAN).write_text("{}")
     # another Stage-2 directory (`takeoff stage2 --out`) whose one round is stage2/001 again
     shutil.copytree(out / gallery.STAGE2 / "001", out / OTHER_STAGE2 / "000")
     (out / OTHER_STAGE2 / stage2_search.PLAN).write_text("{}")
@@ -153,7 +154,7 @@ def test_the_page_names_every_evaluation(search_dir, written):
         _card(page, f"eval-{index:03d}")
     for index in range(len(STAGE2_ROTVECS)):
         assert f"Stage 2 evaluation {index:03d}" in page
-        _card(page, f"s2-eval-{index:03d}")
+        _card(page, f"stage2-eval-{index:03d}")
 
 
 def test_outcomes_failure_reason_and_in_progress(written):
@@ -257,10 +258,10 @@ def test_stage2_runs_are_grouped_with_the_stage1_policies_they_repeat(written):
     labels = strategies.group(stage1 + STAGE2_ROTVECS, strategies.ROTATION_THRESHOLD,
                               "rotation")
     assert list(labels) == [0, 1, 0, 0, 2]
-    repeats = _card(page, "s2-eval-000")
+    repeats = _card(page, "stage2-eval-000")
     assert "repeats Stage-1 evaluation <a href='#eval-001'>001</a>, <a href='#eval-003'>003" \
         in repeats
-    assert "novel" in _card(page, "s2-eval-001") and "repeats" not in _card(page, "s2-eval-001")
+    assert "novel" in _card(page, "stage2-eval-001") and "repeats" not in _card(page, "stage2-eval-001")
 
 
 def test_another_stage2_directory_has_its_own_section_named_by_it(search_dir, written):
@@ -271,14 +272,25 @@ def test_another_stage2_directory_has_its_own_section_named_by_it(search_dir, wr
     assert "novel" in card and "repeats" not in card            # as stage2/001, its copy
     assert f"gallery/{OTHER_STAGE2}_000.gif" in card
     assert (out / "gallery" / f"{OTHER_STAGE2}_000_peak.png").stat().st_size > 0
-    assert _card(page, "s2-eval-001") != card                   # SEARCH/stage2 still shown
+    assert "<h2>Stage 2: novel policies</h2>" in page               # SEARCH/stage2 still shown
 
 
 def test_a_stage2_directory_that_is_not_one_or_shares_a_name_is_named(search_dir, tmp_path):
     with pytest.raises(SystemExit, match=f"takeoff gallery: {tmp_path} is not a Stage-2 "
                                          "directory: it has no plan.json"):
         cli.main(["gallery", str(search_dir), "--stage2", str(tmp_path)])
-    namesake = tmp_path / OTHER_STAGE2
-    shutil.copytree(search_dir / OTHER_STAGE2, namesake)
-    with pytest.raises(gallery.GalleryError, match=f"have one name, '{OTHER_STAGE2}'"):
-        gallery.read_search(search_dir, [search_dir / OTHER_STAGE2, namesake])
+    # Two directories the gallery would name alike: by their names, one of them SEARCH/stage2
+    # (always shown), or once the characters a link cannot hold are replaced.
+    default = search_dir / gallery.STAGE2
+    for first, second in ((search_dir / OTHER_STAGE2, tmp_path / OTHER_STAGE2),
+                          (default, tmp_path / gallery.STAGE2),
+                          (tmp_path / "stage2-sigma", tmp_path / "stage2 sigma")):
+        for directory in (first, second):
+            if not directory.exists():
+                shutil.copytree(search_dir / OTHER_STAGE2, directory)
+        with pytest.raises(gallery.GalleryError,
+                           match=re.escape(f"{first} and {second} would both be named")):
+            gallery.read_search(search_dir, [second] if first == default else [first, second])
+    # SEARCH/stage2 named again is shown once.
+    _, sections = gallery.read_search(search_dir, [search_dir / gallery.STAGE2])
+    assert [s.title for s in sections] == ["Stage 1: take-off states", "Stage 2: novel policies"]

@@ -382,6 +382,23 @@ def test_stage2_trains_a_round_from_the_strategy_and_resumes_like_any_run(
     assert int(state.ppo.iteration) == 2
 
 
+FELL = {"outcome": "failure", "reason": "fell", "highest_cleared": None, "feature": None}
+
+
+def _stand_in_measure(round_result):
+    """A `jump_black_box.measure` that measures nothing: a Stage-1 policy trained again
+    (`retrained`) clears the bar crossing as the search logged it; a round's outcome fields are
+    `round_result(fields)`. Each writes its result.json, as measure does."""
+    def measure(where, run_dir, episodes, data_dir=None, **fields):
+        if fields.get("retrained"):
+            result = {**json.loads((where.parent / jump_black_box.RESULT).read_text()), **fields}
+        else:
+            result = {**fields, "task": "highjump", **round_result(fields)}
+        (where / jump_black_box.RESULT).write_text(json.dumps(result))
+        return result
+    return measure
+
+
 def _fake_training(calls):
     """A `train_commands.train` that trains nothing: it writes the run's config.json, a metrics
     line saying all its iterations are done and a checkpoint file, and records how it was
@@ -423,18 +440,17 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
                  3: None}                                            # fails
     assert min(geodesic(novel_cross, f) for f in (EVAL_0, EVAL_2, eval_3)) > np.pi / 2
     calls, measured = [], []
+    for evaluation in range(4):               # carried from another machine: no training runs
+        shutil.rmtree(jump_black_box.evaluation_dir(directory, evaluation) / "train")
 
-    def measure(where, run_dir, episodes, data_dir=None, **fields):
+    def round_result(fields):
         measured.append(fields["index"])
         cross = crossings[fields["index"]]
-        result = {**fields, "task": "highjump", "outcome": "failure", "reason": "fell",
-                  "highest_cleared": None, "feature": None}
-        if cross is not None:
-            result.update(outcome="success", reason=None, highest_cleared=0.7,
-                          feature={**SUCCESS, "cross_rotvec": list(cross)})
-        (where / jump_black_box.RESULT).write_text(json.dumps(result))
-        return result
-    monkeypatch.setattr(jump_black_box, "measure", measure)
+        if cross is None:
+            return FELL
+        return {"outcome": "success", "reason": None, "highest_cleared": 0.7,
+                "feature": {**SUCCESS, "cross_rotvec": list(cross)}}
+    monkeypatch.setattr(jump_black_box, "measure", _stand_in_measure(round_result))
     monkeypatch.setattr(train_commands, "train", _fake_training(calls))
     out = tmp_path / "out"
     lines = []
@@ -469,9 +485,15 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
     assert calls == [("start", stage1_runs[0]), ("start", out / "000" / "train"),
                      ("start", stage1_runs[1]), ("start", out / "001" / "train"),
                      ("start", out / "002" / "train"), ("start", out / "003" / "train")]
-    for evaluation, run_dir in zip((2, 3), stage1_runs):
+    text = "\n".join(lines)
+    for evaluation, run_dir, bar in zip((2, 3), stage1_runs, (0.73, 0.55)):
         assert (f"Stage-1 evaluation {evaluation}'s policy is not in {directory}: training it "
-                "again from its x with the search's settings") in "\n".join(lines)
+                "again from its x with the search's settings") in text
+        assert (f"Stage-1 evaluation {evaluation} trained again clears {bar:.2f} m (first "
+                f"training: {bar:.2f} m), its crossing 0.00 rad from the one the search logged"
+                ) in text
+        assert json.loads((run_dir.parent / stage2_search.RETRAINED / "result.json")
+                          .read_text())["retrained"] is True
         retrained = train_commands.load_run_config(run_dir)      # the black box's overrides
         assert list(retrained.task.takeoff) == json.loads((run_dir.parent / "result.json")
                                                           .read_text())["x"]
@@ -506,21 +528,19 @@ def test_a_strategy_whose_representative_lost_its_policy_starts_from_one_that_ha
     directory = make_search(tmp_path / "search", [(0.2, EVAL_0, 1.0), (0.25, EVAL_0, 1.0),
                                                   (0.3, EVAL_2, 1.0), (2.8, eval_3, 1.0)],
                             data_dir)
-    for index, name in ((1, trainer_lib.CHECKPOINT), (2, trainer_lib.CHECKPOINT)):
-        (jump_black_box.evaluation_dir(directory, index) / "train" / name).write_bytes(b"")
+    for index in (1, 2):                                  # finished runs: their policies
+        run_dir = jump_black_box.evaluation_dir(directory, index) / "train"
+        (run_dir / trainer_lib.CHECKPOINT).write_bytes(b"")
+        iterations = train_commands.load_run_config(run_dir).run.iterations
+        (run_dir / trainer_lib.METRICS).write_text(json.dumps(
+            {"iteration": iterations, "samples": 16 * iterations, "seconds": 1.0}) + "\n")
     (jump_black_box.evaluation_dir(directory, 1) / jump_black_box.RESULT).write_text(
         json.dumps({**json.loads((jump_black_box.evaluation_dir(directory, 1) /
                                   jump_black_box.RESULT).read_text()), "highest_cleared": 0.9}))
     [strategy, other] = stage2.stage1_strategies(directory)
     assert strategy.evaluations == (0, 1, 2) and strategy.representative == 0
     assert other.evaluations == (3,) and other.representative == 3
-
-    def measure(where, run_dir, episodes, data_dir=None, **fields):
-        result = {**fields, "task": "highjump", "outcome": "failure", "reason": "fell",
-                  "highest_cleared": None, "feature": None}
-        (where / jump_black_box.RESULT).write_text(json.dumps(result))
-        return result
-    monkeypatch.setattr(jump_black_box, "measure", measure)
+    monkeypatch.setattr(jump_black_box, "measure", _stand_in_measure(lambda fields: FELL))
     monkeypatch.setattr(train_commands, "train", _fake_training([]))
     lines = []
     stage2_search.run(directory, rounds=1, out=tmp_path / "out", echo=lines.append)
@@ -539,13 +559,7 @@ def test_stage2_sigma_makes_every_round_explore_at_that_constant_sigma(tmp_path,
     directory = make_search(tmp_path / "search", [(0.2, EVAL_0, 1.0)], data_dir)
     stage1 = train_commands.load_run_config(jump_black_box.evaluation_dir(directory, 0) / "train")
     assert stage1.ppo.sigma_start != stage1.ppo.sigma_end       # an annealed schedule
-
-    def measure(where, run_dir, episodes, data_dir=None, **fields):
-        result = {**fields, "task": "highjump", "outcome": "failure", "reason": "fell",
-                  "highest_cleared": None, "feature": None}
-        (where / jump_black_box.RESULT).write_text(json.dumps(result))
-        return result
-    monkeypatch.setattr(jump_black_box, "measure", measure)
+    monkeypatch.setattr(jump_black_box, "measure", _stand_in_measure(lambda fields: FELL))
     monkeypatch.setattr(train_commands, "train", _fake_training([]))
     lines = []
     stage2_search.run(directory, rounds=2, out=tmp_path / "noisy", sigma=0.4, echo=lines.append)
@@ -566,15 +580,41 @@ def test_stage2_sigma_makes_every_round_explore_at_that_constant_sigma(tmp_path,
         assert code != 0 and f"must be a finite number > 0; got '{bad}'" in err
 
 
-def test_a_stage1_policy_trained_again_that_goes_nowhere_stops_stage2(tmp_path, data_dir,
-                                                                     monkeypatch):
-    """A Stage-1 policy trained again that the black box gives up on (its first training did
-    not) leaves Stage 2 nothing to start from: it stops saying so, before the round's config."""
+def test_a_stage1_run_that_stopped_on_its_own_is_used_as_it_is_and_a_part_one_trained_on(
+        tmp_path, data_dir, monkeypatch):
+    """A Stage-1 run that stopped on its own, by its own stored settings, is used as it is —
+    here one the search gave up on at its first leg (iteration 1; the budget gives 3) whose
+    policy still cleared the bar — and nothing is trained. A run stopped part way is trained
+    on by the search's black box; when that goes nowhere, or the policy does not clear the bar,
+    Stage 2 stops saying so, before the round's config is written."""
     directory = make_search(tmp_path / "search", [(0.2, EVAL_0, 1.0)], data_dir)
-    monkeypatch.setattr(jump_black_box.JumpBlackBox, "train", lambda self, run_dir, x: True)
-    with pytest.raises(SearchError, match="Stage-1 evaluation 0 trained again went nowhere"):
-        stage2_search.run(directory, rounds=1, out=tmp_path / "out", echo=QUIET)
-    assert not (tmp_path / "out" / "000" / stage2_search.RUN_CONFIG).exists()
+    run_dir = jump_black_box.evaluation_dir(directory, 0) / "train"
+    config = json.loads((run_dir / train_commands.CONFIG).read_text())
+    config["run"]["iterations"] = 1
+    (run_dir / train_commands.CONFIG).write_text(json.dumps(config))
+    (run_dir / trainer_lib.CHECKPOINT).write_bytes(b"")
+    (run_dir / trainer_lib.METRICS).write_text(json.dumps(
+        {"iteration": 1, "samples": 16, "seconds": 1.0, "env/episode/success": 0.0}) + "\n")
+    trained, gives_up = [], []
+    monkeypatch.setattr(jump_black_box.JumpBlackBox, "train",
+                        lambda self, where, x: trained.append(where) or gives_up[0])
+    monkeypatch.setattr(jump_black_box, "measure", _stand_in_measure(lambda fields: FELL))
+    monkeypatch.setattr(train_commands, "train", _fake_training([]))        # the round's
+    stage2_search.run(directory, rounds=1, out=tmp_path / "as_it_is", echo=QUIET)
+    assert trained == [] and not (run_dir.parent / stage2_search.RETRAINED).exists()
+    config["run"]["iterations"] = 3                                # now iteration 1 of 3
+    (run_dir / train_commands.CONFIG).write_text(json.dumps(config))
+    monkeypatch.setattr(jump_black_box, "measure",
+                        lambda where, run_dir, episodes, data_dir=None, **fields:
+                        {**fields, **FELL})
+    for give_up, message in ((True, "Stage-1 evaluation 0 trained again went nowhere"),
+                             (False, "Stage-1 evaluation 0 trained again does not clear the bar "
+                                     r"\(fell\)")):
+        gives_up[:] = [give_up]
+        with pytest.raises(SearchError, match=message):
+            stage2_search.run(directory, rounds=1, out=tmp_path / "out", echo=QUIET)
+        assert trained[-1] == run_dir
+        assert not (tmp_path / "out" / "000" / stage2_search.RUN_CONFIG).exists()
 
 
 def test_stage2_needs_a_jump_search_with_a_success(tmp_path, data_dir, capsys):

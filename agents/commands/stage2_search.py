@@ -65,16 +65,20 @@ import json
 import math
 from pathlib import Path
 
+import jax.numpy as jnp
+
 from agents import config as config_io
 from agents.commands import train_commands
 from agents.config import ConfigError
 from agents.discovery import jump_black_box, stage2
+from agents.discovery.stage2 import PLAN           # (the gallery reads it too)
 from agents.rl import parallel
 from agents.rl import trainer as trainer_lib
 from bds.search import SearchError
 from jaxsim.atomic import check_writable, write_text_atomic
 
-PLAN, KNOWN, RUN_CONFIG, SUMMARY = "plan.json", "known.json", "stage2.toml", "summary.json"
+KNOWN, RUN_CONFIG, SUMMARY = "known.json", "stage2.toml", "summary.json"
+RETRAINED = "retrained"     # evaluations/NNN/retrained: a Stage-1 policy trained again, measured
 ROUNDS = 5                  # "five DRL iterations" (§3.7.1), as rounds
 ROUND_SHARE = 3             # a round's samples: a third of one Stage-1 evaluation's budget
 
@@ -124,8 +128,8 @@ def _plan(search_dir, out, search_config, iterations, rounds, sigma, echo) -> di
                           "Stage-1 strategy to start Stage 2 from")
     rounds = ROUNDS if rounds is None else rounds
     if iterations is None:
-        run_settings = _stage1_sections(search_dir, found[0].representative)["run"]
-        per_iteration = run_settings["envs"] * run_settings["steps_per_iteration"]
+        per_iteration = _samples_per_iteration(search_dir, search_config,
+                                               found[0].representative)
         iterations = math.ceil(search_config["jump"]["samples"] / ROUND_SHARE / per_iteration)
     starts = [_start_evaluation(search_dir, strategy, echo) for strategy in found]
     runs = [{"evaluation": start, "strategy": s.label, "round": r}
@@ -164,9 +168,16 @@ def _start_evaluation(search_dir, strategy, echo) -> int:
     return start
 
 
-def _stage1_sections(search_dir, evaluation) -> dict:
-    return config_io.read_stored(jump_black_box.evaluation_dir(search_dir, evaluation)
-                                 / jump_black_box.TRAIN / train_commands.CONFIG)
+def _samples_per_iteration(search_dir, search_config, evaluation) -> int:
+    """Samples per PPO iteration of the Stage-1 training of `evaluation`, from its stored
+    config; from the search's training config when its run is not here."""
+    path = (jump_black_box.evaluation_dir(search_dir, evaluation) / jump_black_box.TRAIN
+            / train_commands.CONFIG)
+    if path.is_file():
+        run = config_io.read_stored(path)["run"]
+        return run["envs"] * run["steps_per_iteration"]
+    jump = search_config["jump"]
+    return train_commands.load_config(jump["train"], jump["set"]).run.samples_per_iteration
 
 
 def stage2_sections(stage1_run, known, iterations, sigma=None) -> dict:
@@ -198,27 +209,66 @@ def to_toml(sections) -> str:
 
 
 def _stage1_policy(search_dir, search_config, index, data_dir, echo):
-    """Make sure Stage-1 evaluation `index` has its finished policy before a round warm-starts
-    from it: trained again, or resumed, by the search's own black box (see the module
-    docstring; nothing happens to a finished training). A policy trained again is a new
-    training from the same x; its result.json — what the search measured and logged, and the
-    feature the rounds are novel against — is kept as it was."""
+    """Make sure Stage-1 evaluation `index` has a finished policy before a round warm-starts
+    from it. One whose run stopped on its own (`_finished`) is used as it is, however it was
+    trained. One that is missing, or stopped part way, is trained (again), or resumed, by the
+    search's own black box (see the module docstring), then measured as the search measures an
+    evaluation, into evaluations/NNN/retrained/ (result.json, episode, peak pose): a new
+    training from the same x may jump another way. Its result.json — what the search measured
+    and logged, the feature the rounds are novel against — is kept as it was; the command says
+    how far the new policy's crossing is from it, and stops when the new policy does not clear
+    the bar."""
+    from agents.commands import strategy_search
+    from bds.acquisition import rotation_geodesic
     directory = jump_black_box.evaluation_dir(search_dir, index)
-    run_dir = directory / jump_black_box.TRAIN
-    result = jump_black_box.read_result(directory)          # a success's (stage1_strategies)
-    settings = config_io.build(jump_black_box.JumpBlackBoxSettings, search_config["jump"],
-                               Path(search_dir) / "config.json", "jump.")
-    box = jump_black_box.JumpBlackBox(settings, Path(search_dir), data_dir)
+    run_dir, again = directory / jump_black_box.TRAIN, directory / RETRAINED
+    if _finished(run_dir) and not again.exists():
+        return                                       # the policy the search measured
+    result = jump_black_box.read_result(directory)   # a success's (stage1_strategies)
+    measured = jump_black_box.read_result(again)
+    if measured is None:
+        if not trainer_lib.has_checkpoint(run_dir):
+            echo(f"Stage-1 evaluation {index}'s policy is not in {search_dir}: training it again "
+                 f"from its x with the search's settings (its first training: "
+                 f"{int(result.get('samples', 0)):,} samples, {result.get('minutes', 0.0):.0f} "
+                 "min)")
+        again.mkdir(parents=True, exist_ok=True)     # marks the run as one to measure when done
+        config = config_io.build(strategy_search.SearchConfig, search_config,
+                                 str(Path(search_dir) / "config.json"))
+        box = strategy_search.black_box(config, search_dir, data_dir)
+        if box.train(run_dir, result["x"]):
+            raise SearchError(
+                f"{run_dir}: Stage-1 evaluation {index} trained again went nowhere (at most "
+                f"{box.settings.give_up_success:.0%} of its episodes succeeded after "
+                f"{box.settings.give_up_samples:,} samples), unlike its first training, so "
+                f"Stage 2 has no policy to start from; delete {run_dir} and {again} to try again")
+        measured = jump_black_box.measure(again, run_dir, config.jump.episodes, data_dir,
+                                          index=index, x=result["x"], retrained=True)
+    if measured["outcome"] != "success":
+        raise SearchError(f"{again}: Stage-1 evaluation {index} trained again does not clear the "
+                          f"bar ({measured['reason']}), so Stage 2 has no policy to start from; "
+                          f"delete {run_dir} and {again} to train it again")
+    logged, new = result["feature"]["cross_rotvec"], measured["feature"]["cross_rotvec"]
+    moved = float(rotation_geodesic(jnp.asarray(new, float), jnp.asarray([logged], float))[0])
+    echo(f"Stage-1 evaluation {index} trained again clears {measured['highest_cleared']:.2f} m "
+         f"(first training: {result['highest_cleared']:.2f} m), its crossing {moved:.2f} rad "
+         f"from the one the search logged (π/2 = {math.pi / 2:.2f}), which its rounds are "
+         f"novel against ({again / jump_black_box.RESULT})")
+
+
+def _finished(run_dir) -> bool:
+    """Whether the training in `run_dir` has a checkpoint and stopped on its own, by its own
+    stored settings: all its iterations done, its curriculum at its stop difficulty, or its
+    time limit spent (a search's evaluation stops at any of them, or at its give-up point,
+    which is then its iterations)."""
     if not trainer_lib.has_checkpoint(run_dir):
-        echo(f"Stage-1 evaluation {index}'s policy is not in {search_dir}: training it again from "
-             f"its x with the search's settings (its first training: "
-             f"{int(result.get('samples', 0)):,} samples, {result.get('minutes', 0.0):.0f} min)")
-    if box.train(run_dir, result["x"]):
-        raise SearchError(f"{run_dir}: Stage-1 evaluation {index} trained again went nowhere (at "
-                          f"most {settings.give_up_success:.0%} of its episodes succeeded after "
-                          f"{settings.give_up_samples:,} samples), unlike its first training, so "
-                          "Stage 2 has no policy to start from; delete the run directory to try "
-                          "again")
+        return False
+    run = train_commands.load_run_config(run_dir).run
+    records = trainer_lib.read_metrics(run_dir)
+    last = records[-1] if records else {}
+    return (last.get("iteration", 0) >= run.iterations
+            or trainer_lib.reached(last, run.stop_difficulty)
+            or 0 < run.time_limit_minutes <= last.get("seconds", 0.0) / 60)
 
 
 def _run_round(search_dir, out, entry, plan, search_config, data_dir, echo):

@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.discovery import jump_black_box
+from agents.discovery import jump_black_box, stage2
 from bds import strategies
 from bds.search import SearchError, logged_evaluations
 from jaxsim import runlog
@@ -61,7 +61,7 @@ from jaxsim.atomic import check_writable, write_text_atomic
 PAGE = "gallery.html"
 IMAGES = "gallery"
 CONTACT_SHEET = "contact_sheet.png"
-STAGE2 = "stage2"
+STAGE2 = stage2.STAGE2      # SEARCH/stage2, shown by default
 SEARCH_FILES = ("config.json", "evaluations.jsonl")
 GIF_FRAMES = 24
 GIF_SIZE = 2.3          # inches at 100 dpi
@@ -100,39 +100,29 @@ class Evaluation:
     notes: list = field(default_factory=list)      # why no pictures, why not counted, …
     repeats: list = field(default_factory=list)    # Stage 2: the Stage-1 evaluations it repeats
     success_probability: float | None = None       # the success model's chance when picked
-    source: str = ""                 # Stage 2 outside SEARCH/stage2: its directory's name
+    source: str = ""                 # Stage 2: its directory's name (`_source_name`)
 
     @property
     def name(self) -> str:
         if self.stage == 1:
             return f"Evaluation {self.index:03d}"
-        return f"Stage 2 evaluation {self.index:03d}" + (f" ({self.source})" if self.source
-                                                         else "")
+        return f"Stage 2 evaluation {self.index:03d}" + (
+            "" if self.source == STAGE2 else f" ({self.source})")
 
     @property
     def anchor(self) -> str:
-        """Its id in the page: eval-NNN, s2-eval-NNN, or SOURCE-eval-NNN (only letters,
-        digits, - and _ of the directory's name kept)."""
-        prefix = re.sub(r"[^A-Za-z0-9_-]", "-", self._prefix("s2"))
-        return f"{prefix}-eval-{self.index:03d}" if prefix else f"eval-{self.index:03d}"
+        """Its id in the page: eval-NNN in Stage 1, SOURCE-eval-NNN in Stage 2."""
+        return f"{self.source}-eval-{self.index:03d}" if self.source else f"eval-{self.index:03d}"
 
     @property
     def stem(self) -> str:
-        """Its pictures' file name without suffix: NNN, stage2_NNN or SOURCE_NNN."""
-        prefix = self._prefix(STAGE2)
-        return f"{prefix}_{self.index:03d}" if prefix else f"{self.index:03d}"
+        """Its pictures' file name without suffix: NNN in Stage 1, SOURCE_NNN in Stage 2."""
+        return f"{self.source}_{self.index:03d}" if self.source else f"{self.index:03d}"
 
     @property
     def short_name(self) -> str:
         """Its name on the contact sheet."""
-        prefix = self._prefix("S2")
-        return f"{prefix} {self.index:03d}" if prefix else f"{self.index:03d}"
-
-    def _prefix(self, stage2: str) -> str:
-        """What tells it apart from the evaluations of the other stages and Stage-2
-        directories: "" in Stage 1, `stage2` in SEARCH/stage2, the directory's name in
-        another."""
-        return "" if self.stage == 1 else self.source or stage2
+        return f"{self.source} {self.index:03d}" if self.source else f"{self.index:03d}"
 
 
 @dataclass
@@ -242,36 +232,40 @@ def read_search(search_dir, stage2_dirs=()) -> tuple[dict, list]:
                            "black_box and [search] (is this a training run directory?)")
     stage1 = _stage1(search_dir, config)
     sections = [stage1]
-    rounds = _numbered_dirs(search_dir / STAGE2)
-    if rounds:
-        sections.append(_stage2(rounds, config, stage1))
     for directory, source in _stage2_sources(search_dir, stage2_dirs):
         sections.append(_stage2(_numbered_dirs(directory), config, stage1, source))
     return config, sections
 
 
 def _stage2_sources(search_dir: Path, stage2_dirs) -> list:
-    """[(directory, its name in the gallery)] of the Stage-2 directories asked for besides
-    SEARCH/stage2 (which is always shown, and is skipped here when named again). A
-    GalleryError names one that is not a `takeoff stage2` output directory, and two that
-    would share a name."""
-    from agents.commands import stage2_search
-    sources, default = {}, (search_dir / STAGE2).resolve()
+    """[(directory, its name in the gallery)] of the Stage-2 sections: SEARCH/stage2 when it
+    has rounds, then each of `stage2_dirs` (a directory named twice is shown once). A
+    GalleryError names one that is not a `takeoff stage2` output directory, and two whose
+    names (`_source_name`) are one, as their cards and pictures would be."""
+    default = search_dir / STAGE2
+    sources = {default.resolve(): (default, STAGE2)} if _numbered_dirs(default) else {}
     for directory in map(Path, stage2_dirs):
-        if not (directory / stage2_search.PLAN).is_file():
+        if not (directory / stage2.PLAN).is_file():
             raise GalleryError(f"{directory} is not a Stage-2 directory: it has no "
-                               f"{stage2_search.PLAN} (a `takeoff stage2 --out DIR` output "
-                               f"directory holds {stage2_search.PLAN} and its rounds NNN/)")
-        if directory.resolve() == default or directory.resolve() in sources:
+                               f"{stage2.PLAN} (a `takeoff stage2 --out DIR` output "
+                               f"directory holds {stage2.PLAN} and its rounds NNN/)")
+        if directory.resolve() in sources:
             continue
-        name = directory.resolve().name
-        clash = next((d for d, n in sources.items() if n == name), None)
-        if clash is not None or (name == STAGE2 and _numbered_dirs(search_dir / STAGE2)):
-            raise GalleryError(f"the Stage-2 directories {clash or search_dir / STAGE2} and "
-                               f"{directory} have one name, {name!r}, and their pictures "
-                               "would overwrite each other's: rename one of them")
-        sources[directory.resolve()] = name
-    return list(sources.items())
+        name = _source_name(directory)
+        clash = next((d for d, n in sources.values() if n == name), None)
+        if clash is not None:
+            raise GalleryError(f"the Stage-2 directories {clash} and {directory} would both be "
+                               f"named {name!r} in the gallery, and their pictures would "
+                               "overwrite each other's: rename one of them")
+        sources[directory.resolve()] = (directory, name)
+    return list(sources.values())
+
+
+def _source_name(directory: Path) -> str:
+    """A Stage-2 directory's name in the gallery, part of its cards' ids and its pictures'
+    file names: the directory's name, every character but letters, digits, '.', '_' and '-'
+    made a '-' (so that it needs no escaping in a link)."""
+    return re.sub(r"[^A-Za-z0-9._-]", "-", directory.resolve().name)
 
 
 def _stage1(search_dir: Path, config: dict) -> Section:
@@ -337,8 +331,8 @@ def _cross_rotvec(evaluation: Evaluation):
     return None
 
 
-def _stage2(dirs: dict, config: dict, stage1: Section, source: str = "") -> Section:
-    """The Stage-2 runs (SEARCH/stage2/NNN, or NNN of the Stage-2 directory named `source`),
+def _stage2(dirs: dict, config: dict, stage1: Section, source: str) -> Section:
+    """The Stage-2 runs (NNN) of the Stage-2 directory named `source` in the gallery,
     grouped by the 3-D root orientation together with the Stage-1 policies before them (those
     counted among the search's strategies), so that a run that repeats a Stage-1 strategy says
     which."""
@@ -349,7 +343,7 @@ def _stage2(dirs: dict, config: dict, stage1: Section, source: str = "") -> Sect
         evaluation.feature = _cross_rotvec(evaluation)
         if evaluation.result is not None:
             evaluation.kind = str(evaluation.result.get("kind", "stage 2"))
-    title = "Stage 2: novel policies" + (f" ({source})" if source else "")
+    title = "Stage 2: novel policies" + ("" if source == STAGE2 else f" ({source})")
     section = Section(
         title, evaluations, strategies.ROTATION_THRESHOLD, "rotation",
         "the root's 3-D orientation where the centre of mass crosses the bar plane (a rotation "
@@ -676,19 +670,19 @@ def _summary_table(section: Section, members: dict) -> str:
         return "<p>No strategy yet: no evaluation has succeeded.</p>"
     size = max((len(ev.x) for ev in section.evaluations if ev.x is not None), default=0)
     components = _components(section.task, size)
-    stage2 = any(ev.stage == 2 for ev in section.evaluations)
+    has_stage2 = any(ev.stage == 2 for ev in section.evaluations)
     head = (f"<tr><th>{e(section.label)}</th><th>first found</th>"
             + "".join(f"<th>{label}{f' ({unit})' if unit else ''}</th>"
                       for label, unit in components)
             + "<th>feature</th><th>highest bar cleared</th><th>evaluations</th>"
-            + ("<th>Stage 1</th>" if stage2 else "") + "</tr>")
+            + ("<th>Stage 1</th>" if has_stage2 else "") + "</tr>")
     body = []
     for group in members.values():
         first = group[0]
         heights = [h for h in ((g.result or {}).get("highest_cleared") for g in group)
                    if h is not None]
         repeats = ""
-        if stage2:
+        if has_stage2:
             repeats = (f"<td>as {_links(first.repeats)}</td>" if first.repeats
                        else "<td>novel</td>")
         body.append(f"<tr><td>{_strategy_badge(first, section)}</td>"

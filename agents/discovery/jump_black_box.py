@@ -128,6 +128,7 @@ class JumpBlackBox:
         from agents.commands import train_commands
         from agents.rl import trainer as trainer_lib
         settings = self.settings
+        x = np.asarray(x, float)
         base = train_commands.load_config(settings.train, settings.set)
         iterations = lambda samples: math.ceil(samples / base.run.samples_per_iteration)
         legs = [iterations(settings.samples)]
@@ -141,8 +142,7 @@ class JumpBlackBox:
                     raise SearchError(f"{run_dir} trains from another take-off state than x = "
                                       f"{x.tolist()}; the directory belongs to another search")
                 return (last.get("iteration", 0) >= leg_iterations
-                        or last.get(trainer_lib.DIFFICULTY, -1) >= config.run.stop_difficulty
-                        - DIFFICULTY_TOLERANCE
+                        or trainer_lib.reached(last, config.run.stop_difficulty)
                         or (settings.minutes and minutes_left(last) <= 0))
 
             def resume_overrides(config, last):  # this leg's end, the time budget left

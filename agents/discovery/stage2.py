@@ -59,6 +59,7 @@ from bds.search import SearchError, logged_evaluations
 
 FEATURE_SIZE = 3            # the root orientation at the bar crossing, as a rotation vector
 STAGE2 = "stage2"           # SEARCH/stage2: the Stage-2 runs of a search
+PLAN = "plan.json"          # a Stage-2 directory's rounds (`takeoff stage2`)
 
 
 @dataclass(frozen=True)

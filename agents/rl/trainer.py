@@ -494,7 +494,7 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
             if time_up:
                 echo(f"time limit of {settings.time_limit_minutes:g} min reached")
                 break
-            if _reached(record, settings.stop_difficulty):
+            if reached(record, settings.stop_difficulty):
                 echo(f"difficulty {record[DIFFICULTY]:g} reached at "
                      f"{record['seconds'] / 60:.1f} min")
                 break
@@ -521,9 +521,9 @@ def _save(trainer: Trainer, state: TrainState, run_dir, writer: bool):
         save_checkpoint(on_host, run_dir)
 
 
-def _reached(record, stop_difficulty) -> bool:
-    """Whether an iteration's curriculum difficulty reached `stop_difficulty` (0: never); to
-    within 1e-5, for a float32 difficulty raised by repeated steps."""
+def reached(record, stop_difficulty) -> bool:
+    """Whether an iteration's metrics `record` has the curriculum at `stop_difficulty` (0:
+    never); to within 1e-5, for a float32 difficulty raised by repeated steps."""
     return bool(stop_difficulty) and record.get(DIFFICULTY, -np.inf) >= stop_difficulty - 1e-5
 
 
