@@ -445,7 +445,7 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
 
     def round_result(fields):
         measured.append(fields["index"])
-        cross = crossings[fields["index"]]
+        cross = crossings.get(fields["index"])                  # (added rounds fail)
         if cross is None:
             return FELL
         return {"outcome": "success", "reason": None, "highest_cleared": 0.7,
@@ -513,9 +513,21 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
     assert calls == [("start", out / "002" / "train"), ("resume", out / "003" / "train")]
     assert measured == [2, 3]
     assert (out / "002" / stage2_search.KNOWN).read_text() == known_002
-    with pytest.raises(ConfigError, match="holds a Stage 2 of 2 rounds × 1 iterations, and "
-                                          "--rounds 3 asks for another"):
-        stage2_search.run(directory, rounds=3, out=out, echo=QUIET)
+    with pytest.raises(ConfigError, match="holds a Stage 2 of 2 rounds, and --rounds 1 asks "
+                                          "for fewer"):
+        stage2_search.run(directory, rounds=1, out=out, echo=QUIET)
+    # A third round per strategy is added after the plan's own, against all found before it.
+    calls.clear()
+    lines.clear()
+    rows = stage2_search.run(directory, rounds=3, out=out, echo=lines.append)
+    assert lines[0] == f"adding rounds 3–3 to the Stage 2 in {out}"
+    plan = json.loads((out / stage2_search.PLAN).read_text())
+    assert plan["rounds"] == 3 and [(r["index"], r["evaluation"], r["round"]) for r in
+                                    plan["runs"][4:]] == [(4, 2, 2), (5, 3, 2)]
+    assert calls == [("start", out / "004" / "train"), ("start", out / "005" / "train")]
+    known = [k["policy"] for k in json.loads((out / "004" / stage2_search.KNOWN).read_text())]
+    assert known == stage1 + ["stage2 000", "stage2 001", "stage2 002"]     # 003 failed
+    assert len(rows) == 6
 
 
 def test_a_strategy_whose_representative_lost_its_policy_starts_from_one_that_has_it(

@@ -339,7 +339,8 @@ def build_parser():
     p.add_argument("--iterations", type=_positive_int, help="PPO iterations per round (default: "
                    "a third of one Stage-1 evaluation's samples)")
     p.add_argument("--rounds", type=_positive_int, help="rounds of novel policy search per "
-                   "strategy (default 5, the thesis's five)")
+                   "strategy (default 5, the thesis's five; more than a resumed Stage 2's adds "
+                   "rounds after its own)")
     p.add_argument("--sigma", type=_positive_float, help="explore every round with this "
                    "constant σ (default: go on with the Stage-1 policy's annealed σ)")
     p.add_argument("--out", help="where the rounds go (default SEARCH_DIR/stage2)")

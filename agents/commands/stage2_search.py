@@ -54,7 +54,8 @@ Files, under OUT (default SEARCH/stage2):
                      evaluation (`agents.discovery.jump_black_box.measure`), written last
     summary.json     what the summary printed
 Run again, the command skips the rounds with a result.json, resumes the one in progress from its
-checkpoint, and goes on.
+checkpoint, and goes on; with a larger --rounds it first adds the rounds after the plan's own
+(round by round, from the same starts), so a Stage 2 can grow sitting by sitting.
 
 The summary: a round's policy is novel when its crossing orientation is farther than d_threshold
 from every feature it was trained against (where r_novelty, eq. 3.12, reaches 1); otherwise it
@@ -113,14 +114,22 @@ def _plan(search_dir, out, search_config, iterations, rounds, sigma, echo) -> di
     if path.exists():
         plan = config_io.read_stored(path)
         for flag, given, stored in (("--iterations", iterations, plan["iterations"]),
-                                    ("--rounds", rounds, plan["rounds"]),
                                     ("--sigma", sigma, plan.get("sigma"))):
             if given is not None and given != stored:
                 raise ConfigError(f"{out} holds a Stage 2 of {plan['rounds']} rounds × "
                                   f"{plan['iterations']} iterations{_with_sigma(plan)}, and "
                                   f"{flag} {given} asks for another: give the same (or none) to "
                                   "resume it, or another --out")
-        echo(f"resuming Stage 2 in {out}")
+        if rounds is not None and rounds < plan["rounds"]:
+            raise ConfigError(f"{out} holds a Stage 2 of {plan['rounds']} rounds, and --rounds "
+                              f"{rounds} asks for fewer: give {plan['rounds']} or more (more "
+                              "rounds are added after its own), or none, or another --out")
+        if rounds is not None and rounds > plan["rounds"]:
+            echo(f"adding rounds {plan['rounds'] + 1}–{rounds} to the Stage 2 in {out}")
+            plan = _with_rounds(plan, rounds)
+            _write_json(path, plan)
+        else:
+            echo(f"resuming Stage 2 in {out}")
         return plan
     found = stage2.stage1_strategies(search_dir)
     if not found:
@@ -131,17 +140,29 @@ def _plan(search_dir, out, search_config, iterations, rounds, sigma, echo) -> di
         per_iteration = _samples_per_iteration(search_dir, search_config,
                                                found[0].representative)
         iterations = math.ceil(search_config["jump"]["samples"] / ROUND_SHARE / per_iteration)
-    starts = [_start_evaluation(search_dir, strategy, echo) for strategy in found]
-    runs = [{"evaluation": start, "strategy": s.label, "round": r}
-            for r in range(rounds) for s, start in zip(found, starts)]
-    plan = {"search": str(search_dir), "rounds": rounds, "iterations": iterations,
-            "sigma": sigma, "runs": [{"index": i, **entry} for i, entry in enumerate(runs)]}
+    starts = [{"evaluation": _start_evaluation(search_dir, strategy, echo),
+               "strategy": strategy.label} for strategy in found]
+    plan = _with_rounds({"search": str(search_dir), "rounds": 0, "iterations": iterations,
+                         "sigma": sigma, "runs": []}, rounds, starts)
     check_writable(out, what="Stage 2's runs")
     _write_json(path, plan)
     echo(f"Stage 2 of {search_dir}: {len(found)} Stage-1 strateg{'y' if len(found) == 1 else 'ies'}"
          f" × {rounds} round{'s' if rounds > 1 else ''} of {iterations} iteration"
          f"{'s' if iterations > 1 else ''}{_with_sigma(plan)} → {out}")
     return plan
+
+
+def _with_rounds(plan, rounds, starts=None) -> dict:
+    """`plan` with rounds up to `rounds` per strategy: the new ones after its own, round by
+    round, from each strategy's start (`starts`: [{evaluation, strategy}]; default: those of
+    its first round)."""
+    if starts is None:
+        starts = [{"evaluation": run["evaluation"], "strategy": run["strategy"]}
+                  for run in plan["runs"] if run["round"] == 0]
+    added = [{**start, "round": r} for r in range(plan["rounds"], rounds) for start in starts]
+    runs = plan["runs"] + [{"index": len(plan["runs"]) + i, **entry}
+                           for i, entry in enumerate(added)]
+    return {**plan, "rounds": rounds, "runs": runs}
 
 
 def _with_sigma(plan) -> str:
