@@ -126,6 +126,11 @@ def search_dir(tmp_path_factory, data_dir):
         result.update(index=index, kind="novelty")
         result["feature"]["cross_rotvec"] = rotvec
         (stage2 / jump_black_box.RESULT).write_text(json.dumps(result))
+        known = [{"policy": f"evaluation {i}", "cross_rotvec": [0.0, 0.0, OUTCOMES[i][0]]}
+                 for i in (1, 2, 3)]                          # Stage 1's, as `takeoff stage2`
+        known += [{"policy": f"stage2 {i:03d}", "cross_rotvec": STAGE2_ROTVECS[i]}
+                  for i in range(index)]                      # and the rounds before
+        (stage2 / stage2_search.KNOWN).write_text(json.dumps(known))
     (out / gallery.STAGE2 / stage2_search.PLAN).write_text("{}")
     # another Stage-2 directory (`takeoff stage2 --out`) whose one round is stage2/001 again
     shutil.copytree(out / gallery.STAGE2 / "001", out / OTHER_STAGE2 / "000")
@@ -259,9 +264,18 @@ def test_stage2_runs_are_grouped_with_the_stage1_policies_they_repeat(written):
                               "rotation")
     assert list(labels) == [0, 1, 0, 0, 2]
     repeats = _card(page, "stage2-eval-000")
-    assert "repeats Stage-1 evaluation <a href='#eval-001'>001</a>, <a href='#eval-003'>003" \
-        in repeats
-    assert "novel" in _card(page, "stage2-eval-001") and "repeats" not in _card(page, "stage2-eval-001")
+    assert ("its group holds Stage-1 evaluation <a href='#eval-001'>001</a>, "
+            "<a href='#eval-003'>003") in repeats
+    # Eq. 3.12 against every policy it was trained against: the nearest of 000 is evaluation
+    # 1, 0.05 rad off; of 001 (2 rad about x) evaluation 1 (0.2 rad about z), at
+    # arccos((cos 2 + cos 0.2 + cos 2 cos 0.2 − 1) / 2) = 2.01 rad.
+    assert "eq. 3.12: repeats (evaluation 1, the nearest of the policies it was trained " \
+           "against, is 0.05 rad away; π/2 = 1.57)" in repeats
+    novel = _card(page, "stage2-eval-001")
+    assert "eq. 3.12: novel (evaluation 1, the nearest of the policies it was trained " \
+           "against, is 2.01 rad away" in novel and "its group holds no Stage-1" in novel
+    summary = re.findall(r"<table class='summary'>(.*?)</table>", page, re.S)[1]
+    assert "repeats evaluation 1 (0.05 rad)" in summary and "novel (2.01 rad)" in summary
 
 
 def test_another_stage2_directory_has_its_own_section_named_by_it(search_dir, written):
@@ -269,7 +283,7 @@ def test_another_stage2_directory_has_its_own_section_named_by_it(search_dir, wr
     assert f"Stage 2: novel policies ({OTHER_STAGE2})" in page
     card = _card(page, f"{OTHER_STAGE2}-eval-000")
     assert f"Stage 2 evaluation 000 ({OTHER_STAGE2})" in card
-    assert "novel" in card and "repeats" not in card            # as stage2/001, its copy
+    assert "eq. 3.12: novel" in card                            # as stage2/001, its copy
     assert f"gallery/{OTHER_STAGE2}_000.gif" in card
     assert (out / "gallery" / f"{OTHER_STAGE2}_000_peak.png").stat().st_size > 0
     assert "<h2>Stage 2: novel policies</h2>" in page               # SEARCH/stage2 still shown

@@ -72,13 +72,13 @@ from agents import config as config_io
 from agents.commands import train_commands
 from agents.config import ConfigError
 from agents.discovery import jump_black_box, stage2
-from agents.discovery.stage2 import PLAN           # (the gallery reads it too)
+from agents.discovery.stage2 import KNOWN, PLAN, RUN_CONFIG   # (the gallery reads them too)
 from agents.rl import parallel
 from agents.rl import trainer as trainer_lib
 from bds.search import SearchError
 from jaxsim.atomic import check_writable, write_text_atomic
 
-KNOWN, RUN_CONFIG, SUMMARY = "known.json", "stage2.toml", "summary.json"
+SUMMARY = "summary.json"
 RETRAINED = "retrained"     # evaluations/NNN/retrained: a Stage-1 policy trained again, measured
 ROUNDS = 5                  # "five DRL iterations" (§3.7.1), as rounds
 ROUND_SHARE = 3             # a round's samples: a third of one Stage-1 evaluation's budget
@@ -346,16 +346,12 @@ def summarise(search_dir, out, echo=print) -> list:
         result = jump_black_box.read_result(directory)
         row = {**entry, "outcome": "not run" if result is None else result["outcome"]}
         if result is not None and result["outcome"] == "success":
-            known = json.loads((directory / KNOWN).read_text())
-            novelty = train_commands.load_run_config(directory / jump_black_box.TRAIN).novelty
-            novel, nearest, gap = stage2.is_novel(
-                result["feature"]["cross_rotvec"], [k["cross_rotvec"] for k in known],
-                novelty.threshold, novelty.distance)
-            name = known[nearest]["policy"]
+            verdict = stage2.round_verdict(directory, result)
+            name = verdict["nearest"]
             if name.startswith("evaluation "):
                 name += f" (Stage-1 strategy {strategy_of.get(int(name.split()[1]), '?')})"
-            row.update(novel=novel, nearest=name, distance=gap, threshold=novelty.threshold,
-                       feature=result["feature"], highest_cleared=result["highest_cleared"])
+            row.update(verdict, nearest=name, feature=result["feature"],
+                       highest_cleared=result["highest_cleared"])
         elif result is not None:
             row.update(reason=result["reason"])
         rows.append(row)

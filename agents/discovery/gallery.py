@@ -101,6 +101,7 @@ class Evaluation:
     repeats: list = field(default_factory=list)    # Stage 2: the Stage-1 evaluations it repeats
     success_probability: float | None = None       # the success model's chance when picked
     source: str = ""                 # Stage 2: its directory's name (`_source_name`)
+    verdict: dict | None = None      # Stage 2: eq. 3.12's (`stage2.round_verdict`), if known
 
     @property
     def name(self) -> str:
@@ -341,6 +342,8 @@ def _stage2(dirs: dict, config: dict, stage1: Section, source: str) -> Section:
     for evaluation in evaluations:
         evaluation.source = source
         evaluation.feature = _cross_rotvec(evaluation)
+        if evaluation.feature is not None:
+            evaluation.verdict = stage2.round_verdict(evaluation.directory, evaluation.result)
         if evaluation.result is not None:
             evaluation.kind = str(evaluation.result.get("kind", "stage 2"))
     title = "Stage 2: novel policies" + ("" if source == STAGE2 else f" ({source})")
@@ -616,9 +619,22 @@ def _strategy_text(evaluation: Evaluation, section: Section, members: dict) -> s
     text = f"{e(section.label)} {evaluation.strategy}"
     text += f" (the same as {_links(same)})" if same else " (alone)"
     if evaluation.stage == 2:
-        text += (f"; repeats Stage-1 evaluation {_links(evaluation.repeats)}"
-                 if evaluation.repeats else "; novel: no Stage-1 policy is as close")
+        text += (f"; its group holds Stage-1 evaluation {_links(evaluation.repeats)}"
+                 if evaluation.repeats else "; its group holds no Stage-1 policy")
+        text += f"; <b>{_novelty_text(evaluation)}</b>"
     return text
+
+
+def _novelty_text(evaluation: Evaluation) -> str:
+    """Eq. 3.12's verdict on a Stage-2 run, as `takeoff stage2`'s summary gives it: against
+    every policy it was trained to differ from, not only its group's first."""
+    verdict = evaluation.verdict
+    if verdict is None:
+        return "eq. 3.12: unknown (no known.json)"
+    what = "novel" if verdict["novel"] else "repeats"
+    return (f"eq. 3.12: {what} ({e(verdict['nearest'])}, the nearest of the policies it was "
+            f"trained against, is {verdict['distance']:.2f} rad away; π/2 = "
+            f"{verdict['threshold']:.2f})")
 
 
 def _card(evaluation: Evaluation, section: Section, members: dict) -> str:
@@ -675,7 +691,7 @@ def _summary_table(section: Section, members: dict) -> str:
             + "".join(f"<th>{label}{f' ({unit})' if unit else ''}</th>"
                       for label, unit in components)
             + "<th>feature</th><th>highest bar cleared</th><th>evaluations</th>"
-            + ("<th>Stage 1</th>" if has_stage2 else "") + "</tr>")
+            + ("<th>its first by eq. 3.12</th>" if has_stage2 else "") + "</tr>")
     body = []
     for group in members.values():
         first = group[0]
@@ -683,8 +699,10 @@ def _summary_table(section: Section, members: dict) -> str:
                    if h is not None]
         repeats = ""
         if has_stage2:
-            repeats = (f"<td>as {_links(first.repeats)}</td>" if first.repeats
-                       else "<td>novel</td>")
+            verdict = first.verdict
+            repeats = ("<td>?</td>" if verdict is None else
+                       f"<td>{'novel' if verdict['novel'] else 'repeats ' + e(verdict['nearest'])}"
+                       f" ({verdict['distance']:.2f} rad)</td>")
         body.append(f"<tr><td>{_strategy_badge(first, section)}</td>"
                     f"<td><a href='#{first.anchor}'>{first.index:03d}</a> ({e(first.kind)})</td>"
                     f"{_x_cells(first.x, size)}<td>{e(_feature_summary(first, section))}</td>"

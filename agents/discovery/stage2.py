@@ -38,6 +38,7 @@ representative is the evaluation that cleared the highest bar.
 """
 
 import dataclasses
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,6 +61,8 @@ from bds.search import SearchError, logged_evaluations
 FEATURE_SIZE = 3            # the root orientation at the bar crossing, as a rotation vector
 STAGE2 = "stage2"           # SEARCH/stage2: the Stage-2 runs of a search
 PLAN = "plan.json"          # a Stage-2 directory's rounds (`takeoff stage2`)
+KNOWN = "known.json"        # a round's known features, with which policy each is
+RUN_CONFIG = "stage2.toml"  # a round's training config
 
 
 @dataclass(frozen=True)
@@ -282,6 +285,26 @@ def highest_bar(search_dir, evaluations) -> tuple[int, float]:
                for i in evaluations}
     best = max(evaluations, key=lambda i: (cleared[i], -i))
     return best, cleared[best]
+
+
+def round_verdict(directory, result) -> dict | None:
+    """Eq. 3.12's verdict on the Stage-2 round in `directory` whose measured `result` is a
+    success: {novel, nearest (the known policy's name), distance, threshold}, against the
+    features it was trained against (KNOWN) with its config's (RUN_CONFIG) threshold and
+    distance; None when the round kept no KNOWN. What `takeoff stage2`'s summary and the
+    gallery both say of a round."""
+    directory = Path(directory)
+    if not (directory / KNOWN).is_file():
+        return None
+    known = json.loads((directory / KNOWN).read_text())
+    section = (config_io.read(directory / RUN_CONFIG).get("novelty", {})
+               if (directory / RUN_CONFIG).is_file() else {})
+    threshold = section.get("threshold", NoveltySettings.threshold)
+    novel, nearest, gap = is_novel(result["feature"]["cross_rotvec"],
+                                   [k["cross_rotvec"] for k in known], threshold,
+                                   section.get("distance", NoveltySettings.distance))
+    return {"novel": novel, "nearest": known[nearest]["policy"], "distance": gap,
+            "threshold": threshold}
 
 
 def is_novel(feature, known, threshold, distance="rotation") -> tuple[bool, int, float]:
