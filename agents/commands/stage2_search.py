@@ -44,6 +44,8 @@ different 3-D orientations — and every successful Stage-2 round before it. So 
 therefore run one after another, round by round (the first round of every strategy, then the
 second, …), so a Stage 2 stopped early has tried every strategy.
 
+A Stage-1 policy trained again is measured into SEARCH/evaluations/NNN/retrained/ (`_stage1_policy`).
+
 Files, under OUT (default SEARCH/stage2):
     plan.json        the rounds (index, Stage-1 evaluation, its strategy, round), fixed at the
                      first start, with the rounds, iterations and σ
