@@ -44,7 +44,8 @@ different 3-D orientations — and every successful Stage-2 round before it. So 
 therefore run one after another, round by round (the first round of every strategy, then the
 second, …), so a Stage 2 stopped early has tried every strategy.
 
-A Stage-1 policy trained again is measured into SEARCH/evaluations/NNN/retrained/ (`_stage1_policy`).
+A Stage-1 policy trained again is measured into SEARCH/evaluations/NNN/retrained/
+(`_stage1_policy`).
 
 Files, under OUT (default SEARCH/stage2):
     plan.json        the rounds (index, Stage-1 evaluation, its strategy, round), fixed at the
@@ -67,8 +68,6 @@ repeats the nearest of them, named with its Stage-1 strategy.
 import json
 import math
 from pathlib import Path
-
-import jax.numpy as jnp
 
 from agents import config as config_io
 from agents.commands import train_commands
@@ -194,11 +193,9 @@ def _start_evaluation(search_dir, strategy, echo) -> int:
 def _samples_per_iteration(search_dir, search_config, evaluation) -> int:
     """Samples per PPO iteration of the Stage-1 training of `evaluation`, from its stored
     config; from the search's training config when its run is not here."""
-    path = (jump_black_box.evaluation_dir(search_dir, evaluation) / jump_black_box.TRAIN
-            / train_commands.CONFIG)
-    if path.is_file():
-        run = config_io.read_stored(path)["run"]
-        return run["envs"] * run["steps_per_iteration"]
+    run_dir = jump_black_box.evaluation_dir(search_dir, evaluation) / jump_black_box.TRAIN
+    if (run_dir / train_commands.CONFIG).is_file():
+        return train_commands.load_run_config(run_dir).run.samples_per_iteration
     jump = search_config["jump"]
     return train_commands.load_config(jump["train"], jump["set"]).run.samples_per_iteration
 
@@ -242,7 +239,6 @@ def _stage1_policy(search_dir, search_config, index, data_dir, echo):
     how far the new policy's crossing is from it, and stops when the new policy does not clear
     the bar."""
     from agents.commands import strategy_search
-    from bds.acquisition import rotation_geodesic
     directory = jump_black_box.evaluation_dir(search_dir, index)
     run_dir, again = directory / jump_black_box.TRAIN, directory / RETRAINED
     if _finished(run_dir) and not again.exists():
@@ -271,11 +267,12 @@ def _stage1_policy(search_dir, search_config, index, data_dir, echo):
         raise SearchError(f"{again}: Stage-1 evaluation {index} trained again does not clear the "
                           f"bar ({measured['reason']}), so Stage 2 has no policy to start from; "
                           f"delete {run_dir} and {again} to train it again")
-    logged, new = result["feature"]["cross_rotvec"], measured["feature"]["cross_rotvec"]
-    moved = float(rotation_geodesic(jnp.asarray(new, float), jnp.asarray([logged], float))[0])
+    threshold = stage2.NoveltySettings.threshold
+    _, _, moved = stage2.is_novel(measured["feature"]["cross_rotvec"],
+                                  [result["feature"]["cross_rotvec"]], threshold)
     echo(f"Stage-1 evaluation {index} trained again clears {measured['highest_cleared']:.2f} m "
          f"(first training: {result['highest_cleared']:.2f} m), its crossing {moved:.2f} rad "
-         f"from the one the search logged (π/2 = {math.pi / 2:.2f}), which its rounds are "
+         f"from the one the search logged (π/2 = {threshold:.2f}), which its rounds are "
          f"novel against ({again / jump_black_box.RESULT})")
 
 

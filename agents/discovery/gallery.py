@@ -697,17 +697,19 @@ def _summary_table(section: Section, members: dict) -> str:
         first = group[0]
         heights = [h for h in ((g.result or {}).get("highest_cleared") for g in group)
                    if h is not None]
-        repeats = ""
+        verdict_cell = ""
         if has_stage2:
             verdict = first.verdict
-            repeats = ("<td>?</td>" if verdict is None else
-                       f"<td>{'novel' if verdict['novel'] else 'repeats ' + e(verdict['nearest'])}"
-                       f" ({verdict['distance']:.2f} rad)</td>")
+            if verdict is None:
+                verdict_cell = "<td>?</td>"
+            else:
+                what = "novel" if verdict["novel"] else f"repeats {e(verdict['nearest'])}"
+                verdict_cell = f"<td>{what} ({verdict['distance']:.2f} rad)</td>"
         body.append(f"<tr><td>{_strategy_badge(first, section)}</td>"
                     f"<td><a href='#{first.anchor}'>{first.index:03d}</a> ({e(first.kind)})</td>"
                     f"{_x_cells(first.x, size)}<td>{e(_feature_summary(first, section))}</td>"
                     f"<td>{_number(max(heights)) + ' m' if heights else '—'}</td>"
-                    f"<td>{len(group)}: {_links(group)}</td>{repeats}</tr>")
+                    f"<td>{len(group)}: {_links(group)}</td>{verdict_cell}</tr>")
     return f"<table class='summary'>{head}{''.join(body)}</table>"
 
 
