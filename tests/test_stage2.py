@@ -382,16 +382,29 @@ def test_stage2_trains_a_round_from_the_strategy_and_resumes_like_any_run(
     assert int(state.ppo.iteration) == 2
 
 
+RETRAINED_TURN = 0.1   # rad: how far a retrained Stage-1 policy's crossing is from the logged one
+
+
+def retrained_crossing(logged):
+    """The crossing of a Stage-1 policy trained again (`_stand_in_measure`): the logged one
+    turned by `RETRAINED_TURN` about the root's x axis."""
+    turn = Rotation.from_rotvec(rotvec([1, 0, 0], RETRAINED_TURN))
+    return (Rotation.from_rotvec(logged) * turn).as_rotvec()
+
+
 FELL = {"outcome": "failure", "reason": "fell", "highest_cleared": None, "feature": None}
 
 
 def _stand_in_measure(round_result):
     """A `jump_black_box.measure` that measures nothing: a Stage-1 policy trained again
-    (`retrained`) clears the bar crossing as the search logged it; a round's outcome fields are
-    `round_result(fields)`. Each writes its result.json, as measure does."""
+    (`retrained`) clears the bar, crossing `RETRAINED_TURN` from the orientation the search
+    logged; a round's outcome fields are `round_result(fields)`. Each writes its result.json,
+    as measure does."""
     def measure(where, run_dir, episodes, data_dir=None, **fields):
         if fields.get("retrained"):
             result = {**json.loads((where.parent / jump_black_box.RESULT).read_text()), **fields}
+            turned = retrained_crossing(result["feature"]["cross_rotvec"])
+            result["feature"] = {**result["feature"], "cross_rotvec": list(turned)}
         else:
             result = {**fields, "task": "highjump", **round_result(fields)}
         (where / jump_black_box.RESULT).write_text(json.dumps(result))
@@ -462,11 +475,16 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
         [(2, 0, 0), (3, 1, 0), (2, 0, 1), (3, 1, 1)]
     known = [[k["policy"] for k in json.loads((out / f"{i:03d}" / stage2_search.KNOWN)
                                               .read_text())] for i in range(4)]
-    stage1 = ["evaluation 0", "evaluation 2", "evaluation 3"]
-    assert known == [stage1, stage1 + ["stage2 000"], stage1 + ["stage2 000", "stage2 001"],
-                     stage1 + ["stage2 000", "stage2 001", "stage2 002"]]
+    # Each start's policy was trained again before its first round, and its own crossing joins
+    # the known set after the logged one (Stage-1 evaluation 0's policy was never needed).
+    stage1 = ["evaluation 0", "evaluation 2", "evaluation 2 (retrained)", "evaluation 3"]
+    stage1_all = stage1 + ["evaluation 3 (retrained)"]
+    assert known == [stage1, stage1_all + ["stage2 000"],
+                     stage1_all + ["stage2 000", "stage2 001"],
+                     stage1_all + ["stage2 000", "stage2 001", "stage2 002"]]
     configs = [train_commands.load_run_config(out / f"{i:03d}" / "train") for i in range(4)]
-    np.testing.assert_allclose(configs[2].novelty.known[3], novel_cross)
+    np.testing.assert_allclose(configs[2].novelty.known[len(stage1_all)], novel_cross)
+    np.testing.assert_allclose(configs[0].novelty.known[2], retrained_crossing(EVAL_2), atol=1e-12)
     assert [c.task.takeoff for c in configs[:2]] == [
         tuple(json.loads((jump_black_box.evaluation_dir(directory, e) / "result.json")
                          .read_text())["x"]) for e in (2, 3)]
@@ -476,7 +494,8 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
         ("success", False, "stage2 000"),
         ("failure", None, None)]
     assert rows[0]["distance"] == pytest.approx(min(geodesic(novel_cross, f) for f in
-                                                    (EVAL_0, EVAL_2, eval_3)), rel=1e-6)
+                                                    (EVAL_0, EVAL_2, retrained_crossing(EVAL_2),
+                                                     eval_3)), rel=1e-6)
     assert rows[2]["distance"] == pytest.approx(0.5, rel=1e-6)
     assert "4 rounds, 1 novel, 2 repeats, 1 failed" in lines[-5]
     assert lines[-4].startswith("000  round 1  from evaluation 2 (strategy 0)  NOVEL")
@@ -490,8 +509,8 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
         assert (f"Stage-1 evaluation {evaluation}'s policy is not in {directory}: training it "
                 "again from its x with the search's settings") in text
         assert (f"Stage-1 evaluation {evaluation} trained again clears {bar:.2f} m (first "
-                f"training: {bar:.2f} m), its crossing 0.00 rad from the one the search logged"
-                ) in text
+                f"training: {bar:.2f} m), its crossing {RETRAINED_TURN:.2f} rad from the one "
+                "the search logged") in text
         assert json.loads((run_dir.parent / stage2_search.RETRAINED / "result.json")
                           .read_text())["retrained"] is True
         retrained = train_commands.load_run_config(run_dir)      # the black box's overrides
@@ -526,7 +545,7 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
                                     plan["runs"][4:]] == [(4, 2, 2), (5, 3, 2)]
     assert calls == [("start", out / "004" / "train"), ("start", out / "005" / "train")]
     known = [k["policy"] for k in json.loads((out / "004" / stage2_search.KNOWN).read_text())]
-    assert known == stage1 + ["stage2 000", "stage2 001", "stage2 002"]     # 003 failed
+    assert known == stage1_all + ["stage2 000", "stage2 001", "stage2 002"]     # 003 failed
     assert len(rows) == 6
 
 

@@ -73,14 +73,13 @@ from agents import config as config_io
 from agents.commands import train_commands
 from agents.config import ConfigError
 from agents.discovery import jump_black_box, stage2
-from agents.discovery.stage2 import KNOWN, PLAN, RUN_CONFIG   # (the gallery reads them too)
+from agents.discovery.stage2 import KNOWN, PLAN, RETRAINED, RUN_CONFIG   # (shared)
 from agents.rl import parallel
 from agents.rl import trainer as trainer_lib
 from bds.search import SearchError
 from jaxsim.atomic import check_writable, write_text_atomic
 
 SUMMARY = "summary.json"
-RETRAINED = "retrained"     # evaluations/NNN/retrained: a Stage-1 policy trained again, measured
 ROUNDS = 5                  # "five DRL iterations" (§3.7.1), as rounds
 ROUND_SHARE = 3             # a round's samples: a third of one Stage-1 evaluation's budget
 
@@ -204,9 +203,10 @@ def stage2_sections(stage1_run, known, iterations, sigma=None) -> dict:
     """The config (nested dicts) of a Stage-2 round from the Stage-1 run in `stage1_run`: its
     settings (task, take-off state, networks, PPO; with a constant exploration σ = `sigma`
     unless that is None), `iterations` iterations with no stop difficulty or time limit, and a
-    [novelty] section warm-starting from it, novel against the rotation vectors `known`. The warm start is written as `stage1_run` is given (a relative
-    path stays relative to the working directory, as the config's P-VAE path is), not resolved
-    to this machine's absolute path."""
+    [novelty] section warm-starting from it, novel against the rotation vectors `known`. The
+    warm start is written as `stage1_run` is given (a relative path stays relative to the
+    working directory, as the config's P-VAE path is), not resolved to this machine's absolute
+    path."""
     sections = config_io.read_stored(Path(stage1_run) / train_commands.CONFIG)
     sections["run"].update(iterations=iterations, stop_difficulty=0.0, time_limit_minutes=0.0)
     if sigma is not None:
@@ -235,9 +235,9 @@ def _stage1_policy(search_dir, search_config, index, data_dir, echo):
     search's own black box (see the module docstring), then measured as the search measures an
     evaluation, into evaluations/NNN/retrained/ (result.json, episode, peak pose): a new
     training from the same x may jump another way. Its result.json — what the search measured
-    and logged, the feature the rounds are novel against — is kept as it was; the command says
-    how far the new policy's crossing is from it, and stops when the new policy does not clear
-    the bar."""
+    and logged — is kept as it was, and the new measurement joins the policies the rounds are
+    novel against (`stage2.found_policies`); the command says how far the new policy's crossing
+    is from the logged one, and stops when the new policy does not clear the bar."""
     from agents.commands import strategy_search
     directory = jump_black_box.evaluation_dir(search_dir, index)
     run_dir, again = directory / jump_black_box.TRAIN, directory / RETRAINED
@@ -272,8 +272,8 @@ def _stage1_policy(search_dir, search_config, index, data_dir, echo):
                                   [result["feature"]["cross_rotvec"]], threshold)
     echo(f"Stage-1 evaluation {index} trained again clears {measured['highest_cleared']:.2f} m "
          f"(first training: {result['highest_cleared']:.2f} m), its crossing {moved:.2f} rad "
-         f"from the one the search logged (π/2 = {threshold:.2f}), which its rounds are "
-         f"novel against ({again / jump_black_box.RESULT})")
+         f"from the one the search logged (π/2 = {threshold:.2f}); its rounds are novel "
+         f"against both ({again / jump_black_box.RESULT})")
 
 
 def _finished(run_dir) -> bool:

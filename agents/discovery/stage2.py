@@ -58,6 +58,7 @@ from bds.acquisition import distance_function
 from bds.novelty import novelty_reward
 from bds.search import SearchError, logged_evaluations
 
+RETRAINED = "retrained"     # evaluations/NNN/retrained: a lost Stage-1 policy, trained again
 FEATURE_SIZE = 3            # the root orientation at the bar crossing, as a rotation vector
 STAGE2 = "stage2"           # SEARCH/stage2: the Stage-2 runs of a search
 PLAN = "plan.json"          # a Stage-2 directory's rounds (`takeoff stage2`)
@@ -249,15 +250,21 @@ def stage2_results(stage2_dir) -> list[tuple[int, dict]]:
 
 def found_policies(search_dir, stage2_dir=None) -> list[Policy]:
     """Every policy the search in `search_dir` has found so far: its successful Stage-1
-    evaluations, then its successful Stage-2 runs (under `stage2_dir`, default
-    SEARCH/stage2)."""
+    evaluations — each followed by its policy trained again (evaluations/NNN/retrained), where
+    Stage 2 had to retrain a lost one and it succeeded: a new training from the same x crosses
+    in its own orientation, and a round that warm-starts from it must be novel against that
+    one too —, then its successful Stage-2 runs (under `stage2_dir`, default SEARCH/stage2)."""
     _, records = read_search(search_dir)
     policies = []
     for record in records:
         if record["feature"] is not None:
+            directory = jump_black_box.evaluation_dir(search_dir, record["index"])
             result = _stage1_result(search_dir, record["index"])
-            policies.append(_policy(f"evaluation {record['index']}", result,
-                                    jump_black_box.evaluation_dir(search_dir, record["index"])))
+            policies.append(_policy(f"evaluation {record['index']}", result, directory))
+            again = jump_black_box.read_result(directory / RETRAINED)
+            if again is not None and again.get("outcome") == "success":
+                policies.append(_policy(f"evaluation {record['index']} (retrained)", again,
+                                        directory / RETRAINED))
     stage2_dir = Path(search_dir) / STAGE2 if stage2_dir is None else Path(stage2_dir)
     for index, result in stage2_results(stage2_dir):
         if result.get("outcome") == "success":
