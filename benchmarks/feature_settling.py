@@ -109,6 +109,19 @@ def table(search_dir: Path | None, out: Path) -> str:
 def filmstrips(search_dir: Path, out: Path, bars, path: Path, panels: int = 10):
     """One PNG: a row per episode (each evaluation in OUT as the search measured it, then at
     each of `bars`), `panels` poses of it seen along the bar (`jaxsim.render.filmstrip`)."""
+    episodes = []
+    for evaluation in sorted(p for p in out.iterdir() if p.is_dir()):
+        index = int(evaluation.name)
+        episodes += [(f"{index:03d} in the search", evaluation_dir(search_dir, index),
+                      evaluation / TRAIN)]
+        episodes += [(f"{index:03d} at {bar:.2f} m", bar_dir(out, index, bar), evaluation / TRAIN)
+                     for bar in bars]
+    filmstrip_sheet(episodes, path, panels)
+
+
+def filmstrip_sheet(episodes, path: Path, panels: int = 10):
+    """One PNG of episodes [(label, directory with episode.npz, the training run that drew it)],
+    a row each: `panels` poses seen along the bar (`jaxsim.render.filmstrip`)."""
     import tempfile
     from PIL import Image
     from agents.discovery import pictures
@@ -116,21 +129,16 @@ def filmstrips(search_dir: Path, out: Path, bars, path: Path, panels: int = 10):
     from jaxsim import render
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
-        for evaluation in sorted(p for p in out.iterdir() if p.is_dir()):
-            index = int(evaluation.name)
-            episodes = [(f"{index:03d} in the search", evaluation_dir(search_dir, index))]
-            episodes += [(f"{index:03d} at {bar:.2f} m", bar_dir(out, index, bar))
-                         for bar in bars]
-            env = drawing_env(evaluation / TRAIN)
-            for label, directory in episodes:
-                poses, control_dt, task = read_episode(directory, env.q0.dtype)
-                _, along = pictures.bar_directions(env, task)
-                row = Path(scratch) / f"{len(rows)}.png"
-                render.filmstrip(env.model, poses, row, world=env.world_for(task),
-                                 n_panels=panels, azimuth=pictures.azimuth_looking_along(along),
-                                 times=control_dt * (np.arange(len(poses)) + 1), title=label,
-                                 panel_size=1.6)
-                rows.append(Image.open(row).convert("RGB"))
+        for label, directory, run_dir in episodes:
+            env = drawing_env(run_dir)
+            poses, control_dt, task = read_episode(directory, env.q0.dtype)
+            _, along = pictures.bar_directions(env, task)
+            row = Path(scratch) / f"{len(rows)}.png"
+            render.filmstrip(env.model, poses, row, world=env.world_for(task),
+                             n_panels=panels, azimuth=pictures.azimuth_looking_along(along),
+                             times=control_dt * (np.arange(len(poses)) + 1), title=label,
+                             panel_size=1.6)
+            rows.append(Image.open(row).convert("RGB"))
     sheet = Image.new("RGB", (max(r.width for r in rows), sum(r.height for r in rows)), "white")
     top = 0
     for row in rows:
