@@ -45,7 +45,7 @@ therefore run one after another, round by round (the first round of every strate
 second, …), so a Stage 2 stopped early has tried every strategy.
 
 A Stage-1 policy trained again is measured into SEARCH/evaluations/NNN/retrained/
-(`_stage1_policy`).
+(`_stage1_policy`), and its crossing joins the known set beside the one the search logged.
 
 Files, under OUT (default SEARCH/stage2):
     plan.json        the rounds (index, Stage-1 evaluation, its strategy, round), fixed at the
