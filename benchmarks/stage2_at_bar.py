@@ -23,12 +23,16 @@ so `--stop-bar 1.0 --iterations 3000` trains a round on until it clears 1.0 m.
 """
 
 import argparse
+import json
 import shutil
 from pathlib import Path
+
+import numpy as np
 
 from agents.commands import stage2_search, train_commands
 from agents.discovery import jump_black_box, stage2
 from agents.rl import trainer as trainer_lib
+from bds.acquisition import rotation_geodesic
 from jaxsim.atomic import write_text_atomic
 
 SNAPSHOT = "start"          # OUT/start: the settling run's checkpoint at the bar
@@ -77,9 +81,13 @@ def main(argv=None):
         raise SystemExit(f"{snapshot}: its checkpoint is at bar {reached:.2f} m, not the "
                          f"{start_result['evaluated_at']:.2f} m measured in {args.start}: the "
                          "settling run has trained on; copy it at that bar")
-    known = known_at(args.start.name, args.known)
-    config_path, run_dir = args.out / "stage2.toml", args.out / jump_black_box.TRAIN
+    config_path, run_dir = args.out / stage2.RUN_CONFIG, args.out / jump_black_box.TRAIN
     if not config_path.exists():
+        # The known set is decided once, as `takeoff stage2` decides a round's, and kept in
+        # known.json beside the config: a rerun is judged against what the round trained against.
+        known = known_at(args.start.name, args.known)
+        write_text_atomic(args.out / stage2.KNOWN, json.dumps(
+            [{"policy": name, "cross_rotvec": feature} for name, feature in known]))
         sections = stage2_search.stage2_sections(snapshot, [f for _, f in known],
                                                  args.iterations, args.sigma)
         write_text_atomic(config_path, "# Stage 2 from a policy at a lower bar "
@@ -97,15 +105,16 @@ def main(argv=None):
     if result["outcome"] != "success":
         print(f"the round FAILED: {result['reason']}")
         return
-    novel, nearest, distance = stage2.is_novel(result["feature"]["cross_rotvec"],
-                                               [f for _, f in known],
-                                               stage2.NoveltySettings.threshold)
+    verdict = stage2.round_verdict(args.out, result)         # eq. 3.12, as `takeoff stage2`
     print(f"the round clears {result['highest_cleared']:.2f} m, up angle "
-          f"{result['feature']['up_angle']:.3f} rad; {'NOVEL' if novel else 'a repeat'}: nearest "
-          f"{known[nearest][0]}, {distance:.2f} rad (π/2 = 1.57)")
-    for name, feature in known:
-        _, _, d = stage2.is_novel(result["feature"]["cross_rotvec"], [feature], 1.0)
-        print(f"  {d:.2f} rad from {name}")
+          f"{result['feature']['up_angle']:.3f} rad; {'NOVEL' if verdict['novel'] else 'a repeat'}"
+          f": nearest {verdict['nearest']}, {verdict['distance']:.2f} rad (π/2 = "
+          f"{verdict['threshold']:.2f})")
+    known = json.loads((args.out / stage2.KNOWN).read_text())
+    gaps = rotation_geodesic(np.asarray(result["feature"]["cross_rotvec"], np.float32),
+                             np.asarray([k["cross_rotvec"] for k in known], np.float32))
+    for policy, gap in zip(known, np.asarray(gaps)):
+        print(f"  {gap:.2f} rad from {policy['policy']}")
     if args.filmstrip:
         from feature_settling import filmstrip_sheet        # (benchmarks/, the script's folder)
         bar = args.start.name[4:]
