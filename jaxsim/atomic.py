@@ -1,10 +1,13 @@
 """Writing files so that a reader never sees half of one: write a temporary file in the same
 folder, flush it to disk, then rename it over the target (an atomic step on POSIX and Windows).
 And `check_writable`, asked before any long work, so that an output folder that cannot take the
-results fails at once with its name, not after minutes of work with a traceback."""
+results fails at once with its name, not after minutes of work with a traceback; and
+`hold_directory`, so that two processes never write one run or search directory at once."""
 
 import contextlib
+import fcntl
 import os
+import socket
 import shutil
 import tempfile
 from pathlib import Path
@@ -72,3 +75,34 @@ def write_text_atomic(path, text):
     """Write `text` (UTF-8) to `path` atomically."""
     with atomic_path(path) as tmp:
         Path(tmp).write_text(text, encoding="utf-8")
+
+
+LOCK_FILE = ".lock"
+
+
+@contextlib.contextmanager
+def hold_directory(directory, what: str = "the directory"):
+    """Hold `directory` (creating it) for this process while the block runs: an advisory lock
+    (flock) on its `LOCK_FILE`, which records who holds it. A directory another process holds
+    is an `OutputError` naming it and that process, raised before anything in it is touched.
+    The kernel drops the lock when its holder dies, however it dies (kill -9 too), so a killed
+    run never leaves a stale lock behind to clear by hand; the file itself stays, harmless."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / LOCK_FILE
+    with open(path, "a+", encoding="utf-8") as f:
+        try:
+            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            holder = f.read().strip() or "another process"
+            raise OutputError(f"{directory}: {what} is in use by {holder}; wait for it to end, "
+                              f"or stop it, before starting another process on it") from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"process {os.getpid()} on {socket.gethostname()}\n")
+        f.flush()
+        try:
+            yield directory
+        finally:
+            fcntl.flock(f.fileno(), fcntl.LOCK_UN)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from agents.commands.cli import main
+from jaxsim.atomic import hold_directory
 from jaxsim.executor import LocalProcesses
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.optimize import direct, maximize_lbfgs
@@ -392,6 +393,9 @@ def test_positional_features_keep_the_regions_and_follow_where_a_strategy_lies()
     assert positional.features.min() == 0.0 and positional.features.max() == 1.0
 
 
+CONFIGS = Path(__file__).parents[1] / "configs"
+
+
 def write_config(tmp_path, text):
     path = tmp_path / "search.toml"
     path.write_text(text)
@@ -425,8 +429,19 @@ large = 1
     assert "resuming from" in out and "[  7/8]" in out and "[  6/8]" not in out
 
 
+def test_a_search_another_process_holds_is_refused_before_it_writes(tmp_path, capsys):
+    out_dir = tmp_path / "run"
+    with hold_directory(out_dir, "the search"):
+        code, _, _ = run_cli(["search", str(CONFIGS / "search_landscape.toml"), "--out",
+                              str(out_dir)], capsys)
+    assert re.fullmatch(rf"takeoff search: {out_dir}: the search is in use by process \d+ "
+                        rf"on .+; wait for it to end, or stop it, before starting another "
+                        rf"process on it", code)
+    assert sorted(p.name for p in out_dir.iterdir()) == [".lock"]
+
+
 def test_takeoff_search_with_two_workers_and_a_resume_with_one(tmp_path, capsys):
-    config = Path(__file__).parents[1] / "configs" / "search_landscape.toml"
+    config = CONFIGS / "search_landscape.toml"
     out_dir = tmp_path / "run"
     small = ["--set", "search.initial=2", "--set", "search.batch=2",
              "--set", "search.gp_restarts=2", "--set", "search.gp_steps=50",

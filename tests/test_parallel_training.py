@@ -164,8 +164,8 @@ def test_two_processes_compute_what_one_computes_and_the_checkpoint_resumes_in_o
                                *overrides()), cache)
     assert "split over 2 devices in 2 processes" in stdout
     assert stdout.count("iter     2/2") == 1                     # process 0 shows progress
-    assert sorted(p.name for p in run_dir.iterdir()) == [
-        "checkpoint.msgpack", "config.json", "learning_curve.png", "metrics.jsonl"]
+    assert sorted(p.name for p in run_dir.iterdir()) == [      # process 0 held it
+        ".lock", "checkpoint.msgpack", "config.json", "learning_curve.png", "metrics.jsonl"]
     assert_same_run(run_dir, out / "one")
     # An ordinary checkpoint: one process resumes it and goes on.
     run(takeoff_train("--resume", str(run_dir), "--set", "run.iterations=3"), cache)

@@ -26,6 +26,7 @@ from agents.tasks import jump, takeoff_state
 from bds.novelty import novelty_reward
 from bds.search import Failure, SearchError, SearchSettings, logged_evaluations, search
 from jaxsim import rotations
+from jaxsim.atomic import OutputError, hold_directory
 
 from conftest import tiny_highjump_training
 from test_cli import run as run_cli
@@ -547,6 +548,15 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
     known = [k["policy"] for k in json.loads((out / "004" / stage2_search.KNOWN).read_text())]
     assert known == stage1_all + ["stage2 000", "stage2 001", "stage2 002"]     # 003 failed
     assert len(rows) == 6
+
+
+def test_a_stage2_another_process_holds_is_refused_before_it_writes(tmp_path, data_dir):
+    directory = make_search(tmp_path / "search", [(0.2, EVAL_0, 0.6)], data_dir)
+    out = tmp_path / "out"
+    with hold_directory(out, "Stage 2"):
+        with pytest.raises(OutputError, match=rf"{out}: Stage 2 is in use by process "):
+            stage2_search.run(directory, rounds=1, out=out, echo=lambda *_: None)
+    assert sorted(p.name for p in out.iterdir()) == [".lock"]
 
 
 def test_a_strategy_whose_representative_lost_its_policy_starts_from_one_that_has_it(

@@ -18,7 +18,7 @@ from agents.rl.ppo import PPOSettings
 from agents.rl.rollout import make_rollout, start_runner
 from agents.tasks.reach import ReachEnv, ReachSettings
 from jaxsim import atomic
-from jaxsim.atomic import OutputError
+from jaxsim.atomic import OutputError, hold_directory
 
 CONFIG = "configs/reach.toml"
 
@@ -249,6 +249,28 @@ def test_resume_accepts_a_fixed_key_at_the_run_s_own_value(tmp_path):
     small_run(tmp_path, 2)
     _, state = train_commands.train(resume=tmp_path / "run", echo=lambda *_: None,
                                     overrides=["run.iterations=3", "run.seed=0"])
+    assert int(state.ppo.iteration) == 3
+
+
+def test_a_run_another_process_holds_is_refused_and_left_as_it_was(tmp_path):
+    small_run(tmp_path, 2)
+    run_dir = tmp_path / "run"
+
+    def contents():
+        return {p.name: p.read_bytes() for p in run_dir.iterdir() if p.name != atomic.LOCK_FILE}
+
+    before = contents()
+    with hold_directory(run_dir, "the run"):        # as another process training it would
+        with pytest.raises(OutputError, match=rf"{run_dir}: the run is in use by process "):
+            train_commands.train(resume=run_dir, overrides=["run.iterations=3"],
+                                 echo=lambda *_: None)
+        assert contents() == before
+        with hold_directory(tmp_path / "new", "the run"):   # a new run's directory alike
+            with pytest.raises(OutputError, match="new: the run is in use by process "):
+                small_run(tmp_path, 2, name="new")
+    assert not (tmp_path / "new" / "metrics.jsonl").exists()
+    _, state = train_commands.train(resume=run_dir, overrides=["run.iterations=3"],
+                                    echo=lambda *_: None)
     assert int(state.ppo.iteration) == 3
 
 

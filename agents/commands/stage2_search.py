@@ -77,7 +77,7 @@ from agents.discovery.stage2 import KNOWN, PLAN, RETRAINED, RUN_CONFIG   # (shar
 from agents.rl import parallel
 from agents.rl import trainer as trainer_lib
 from bds.search import SearchError
-from jaxsim.atomic import check_writable, write_text_atomic
+from jaxsim.atomic import check_writable, hold_directory, write_text_atomic
 
 SUMMARY = "summary.json"
 ROUNDS = 5                  # "five DRL iterations" (§3.7.1), as rounds
@@ -92,10 +92,11 @@ def run(search_dir, iterations=None, rounds=None, out=None, data_dir=None, echo=
     out = search_dir / stage2.STAGE2 if out is None else Path(out)
     search_config, records = stage2.read_search(search_dir)
     _start_devices(search_dir, records)
-    plan = _plan(search_dir, out, search_config, iterations, rounds, sigma, echo)
-    for entry in plan["runs"]:
-        _run_round(search_dir, out, entry, plan, search_config, data_dir, echo)
-    return summarise(search_dir, out, echo)
+    with hold_directory(out, "Stage 2"):
+        plan = _plan(search_dir, out, search_config, iterations, rounds, sigma, echo)
+        for entry in plan["runs"]:
+            _run_round(search_dir, out, entry, plan, search_config, data_dir, echo)
+        return summarise(search_dir, out, echo)
 
 
 def _start_devices(search_dir, records):

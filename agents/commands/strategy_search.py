@@ -40,7 +40,7 @@ from bds import strategies
 from bds.gp import to_unit
 from bds.landscapes import LandscapeSettings, StrategyLandscape
 from bds.search import SearchSettings, check_bounds, logged_evaluations, search
-from jaxsim.atomic import check_writable, write_text_atomic
+from jaxsim.atomic import check_writable, hold_directory, write_text_atomic
 from jaxsim.executor import ExecutorSettings, executor_from
 
 BLACK_BOXES = ("landscape", "ballistic", "jump")
@@ -201,6 +201,14 @@ def run(config_path, out_dir=None, overrides=(), workers=None, echo=print, data_
     if log.exists():
         _check_resumable(out_dir, json.loads(text))
     check_writable(out_dir, what="the search's log")
+    with hold_directory(out_dir, "the search"):
+        return _run_held(config, out_dir, text, echo, data_dir)
+
+
+def _run_held(config: SearchConfig, out_dir: Path, text: str, echo, data_dir):
+    """`run`'s work in the search directory, which this process holds: the search, resumed
+    from its log, with progress and the summary."""
+    log = out_dir / "evaluations.jsonl"
     if config.black_box == "jump":     # trainings in this process use a device per core
         from agents.commands import train_commands
         from agents.rl import parallel

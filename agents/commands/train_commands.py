@@ -35,7 +35,7 @@ from agents.rl.rollout import start_runner
 from agents.rl.trainer import RunSettings
 from agents.tasks import physics as physics_lib
 from agents.tasks import registry
-from jaxsim.atomic import check_writable, write_text_atomic
+from jaxsim.atomic import check_writable, hold_directory, write_text_atomic
 
 CONFIG = "config.json"
 CURVE = "learning_curve.png"
@@ -243,10 +243,18 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
     _check_memory(state_bytes + sample_bytes, source,
                   f"run.envs × run.steps_per_iteration = {config.run.envs} × "
                   f"{config.run.steps_per_iteration}")
-    if writer:
-        existing = sum(f.stat().st_size for f in (run_dir / trainer_lib.CHECKPOINT,
-                       previous_path(run_dir / trainer_lib.CHECKPOINT)) if f.is_file())
-        check_writable(run_dir, 3 * state_bytes - existing + 2**20, "the run's checkpoints")
+    if not writer:
+        return trainer, _train_in(run_dir, trainer, config, source, resume, writer, echo)
+    existing = sum(f.stat().st_size for f in (run_dir / trainer_lib.CHECKPOINT,
+                   previous_path(run_dir / trainer_lib.CHECKPOINT)) if f.is_file())
+    check_writable(run_dir, 3 * state_bytes - existing + 2**20, "the run's checkpoints")
+    with hold_directory(run_dir, "the run"):
+        return trainer, _train_in(run_dir, trainer, config, source, resume, writer, echo)
+
+
+def _train_in(run_dir, trainer, config, source, resume, writer, echo):
+    """`train`'s work once the run directory is settled (and, by process 0, held): the
+    starting state (new, warm-started or resumed), then the training; returns the last state."""
     state = (stage2.warm_start(trainer, config, source, echo)
              if resume is None and config.novelty is not None and writer else trainer.init())
     if resume is not None and writer:
@@ -264,11 +272,10 @@ def train(config_path=None, out_dir=None, overrides=(), resume=None, data_dir=No
          f"{s.samples_per_iteration} samples per iteration, {s.iterations} iterations"
          f"{parallel.describe(trainer.layout.mesh)} → {run_dir}")
     try:
-        state = trainer_lib.run(trainer, state, run_dir, echo)
+        return trainer_lib.run(trainer, state, run_dir, echo)
     finally:                      # the curve of what was done, whatever ended the run; its own
         if writer:                # failure must not hide the run's error
             _plot_after_run(run_dir, echo)
-    return trainer, state
 
 
 def _quiet(*_):
