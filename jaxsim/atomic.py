@@ -7,8 +7,8 @@ results fails at once with its name, not after minutes of work with a traceback;
 import contextlib
 import fcntl
 import os
-import socket
 import shutil
+import socket
 import tempfile
 from pathlib import Path
 
