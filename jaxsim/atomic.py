@@ -88,9 +88,14 @@ def hold_directory(directory, what: str = "the directory"):
     The kernel drops the lock when its holder dies, however it dies (kill -9 too), so a killed
     run never leaves a stale lock behind to clear by hand; the file itself stays, harmless."""
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
     path = directory / LOCK_FILE
-    with open(path, "a+", encoding="utf-8") as f:
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        f = open(path, "a+", encoding="utf-8")
+    except OSError as error:
+        raise OutputError(f"{path}: cannot open the lock that keeps {what} to one process "
+                          f"({error.strerror or error})") from None
+    with f:
         try:
             fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -98,6 +103,9 @@ def hold_directory(directory, what: str = "the directory"):
             holder = f.read().strip() or "another process"
             raise OutputError(f"{directory}: {what} is in use by {holder}; wait for it to end, "
                               f"or stop it, before starting another process on it") from None
+        except OSError as error:    # a filesystem without flock (ENOLCK, EOPNOTSUPP)
+            raise OutputError(f"{path}: cannot lock it to keep {what} to one process "
+                              f"({error.strerror or error}); use a local folder") from None
         f.seek(0)
         f.truncate()
         f.write(f"process {os.getpid()} on {socket.gethostname()}\n")

@@ -68,3 +68,12 @@ def test_a_holder_killed_with_sigkill_leaves_no_lock_behind(tmp_path):
         child.wait()
     with hold_directory(run_dir):                    # nothing to clear by hand
         pass
+
+
+def test_a_lock_that_cannot_be_opened_is_named(tmp_path):
+    run_dir = tmp_path / "run"
+    (run_dir / ".lock").mkdir(parents=True)             # not a file: open() fails
+    with pytest.raises(OutputError, match=r"run/\.lock: cannot open the lock that keeps the "
+                                          r"run to one process"):
+        with hold_directory(run_dir, "the run"):
+            pass

@@ -434,9 +434,9 @@ def test_a_search_another_process_holds_is_refused_before_it_writes(tmp_path, ca
     with hold_directory(out_dir, "the search"):
         code, _, _ = run_cli(["search", str(CONFIGS / "search_landscape.toml"), "--out",
                               str(out_dir)], capsys)
-    assert re.fullmatch(rf"takeoff search: {out_dir}: the search is in use by process \d+ "
-                        rf"on .+; wait for it to end, or stop it, before starting another "
-                        rf"process on it", code)
+    assert re.fullmatch(rf"takeoff search: {re.escape(str(out_dir))}: the search is in use by "
+                        rf"process \d+ on .+; wait for it to end, or stop it, before starting "
+                        rf"another process on it", code)
     assert sorted(p.name for p in out_dir.iterdir()) == [".lock"]
 
 
