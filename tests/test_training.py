@@ -274,6 +274,17 @@ def test_a_run_another_process_holds_is_refused_and_left_as_it_was(tmp_path):
     assert int(state.ppo.iteration) == 3
 
 
+def test_the_minutes_axis_interpolates_the_log_and_extends_it_at_its_mean_rate():
+    records = [{"samples": 100, "seconds": 60.0}, {"samples": 200, "seconds": 240.0},
+               {"samples": 300, "seconds": 300.0}]
+    to_minutes, to_samples = train_commands.minutes_axis(records)
+    np.testing.assert_allclose(to_minutes(np.array([100, 150, 250, 300])), [1, 2.5, 4.5, 5])
+    # Past the ends the mean rate, 4 minutes per 200 samples: a tick at 7 minutes lies
+    # beyond the last sample, not on it.
+    np.testing.assert_allclose(to_minutes(np.array([0, 400])), [-1, 7])
+    np.testing.assert_allclose(to_samples(np.array([7.0, 4.5])), [400, 250])
+
+
 def test_reach_reset_keeps_a_key_it_did_not_draw_with():
     """A reset that keeps the key it drew from hands the rollout a key whose splits are the
     keys already drawn with (jax.random.split(k, 2)[0] == jax.random.split(k, 3)[0])."""

@@ -440,10 +440,18 @@ def evaluate(run_dir, episodes: int = 8, render_path=None, data_dir=None, echo=p
     return summary, env, poses
 
 
-def _minutes_axis(records):
-    """(samples → minutes, minutes → samples) by interpolation of the log, for a second axis."""
+def minutes_axis(records):
+    """(samples → minutes, minutes → samples) by interpolation of the log, for a second axis;
+    past the log's ends, by its mean rate (the axis's margins reach beyond them, and a clamped
+    map would put every tick out there on the last sample, one over another)."""
     samples = np.array([r["samples"] for r in records], float)
     minutes = np.array([r["seconds"] for r in records], float) / 60
+    span = samples[-1] - samples[0]
+    if span > 0:
+        slope = (minutes[-1] - minutes[0]) / span
+        samples = np.concatenate([[samples[0] - span], samples, [samples[-1] + span]])
+        minutes = np.concatenate([[minutes[0] - slope * span], minutes,
+                                  [minutes[-1] + slope * span]])
     return (lambda x: np.interp(x, samples, minutes), lambda m: np.interp(m, minutes, samples))
 
 
@@ -487,7 +495,7 @@ def plot(run_dir, quiet=False):
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     if len(panels) == 3:                                     # and against wall-clock minutes
-        minutes = axes[2].secondary_xaxis("top", functions=_minutes_axis(records))
+        minutes = axes[2].secondary_xaxis("top", functions=minutes_axis(records))
         minutes.set_xlabel("minutes")
     render.save_figure(fig, run_dir / CURVE, title=f"{run_dir.name}: learning curve", dpi=110)
     return run_dir / CURVE
