@@ -36,7 +36,7 @@ import numpy as np
 from agents import config as config_io
 from agents import sweep_report, sweep_spec
 from jaxsim import runlog
-from jaxsim.atomic import write_text_atomic
+from jaxsim.atomic import hold_directory, write_text_atomic
 
 PLAN, BASE, ROWS, MEMBERS = "sweep.json", "base.json", "sweep.jsonl", "members"
 
@@ -151,19 +151,20 @@ def run(path, out_dir=None, overrides=(), data_dir=None, echo=print) -> Path:
     going on where a killed run of the same sweep stopped; returns the directory."""
     sweep = load(path, overrides)
     out = Path(out_dir or Path("runs") / Path(path).stem)
-    _claim(out, sweep)
-    done = {row["member"] for row in rows_of(out, echo)}
-    todo = [i for i in range(len(sweep.members)) if i not in done]
-    kind = "evaluation" if sweep.evaluate else "training"
-    echo(f"sweep of {len(sweep.members)} members ({kind}; {', '.join(sweep.keys)}) → {out}"
-         + (f"; {len(done)} done before" if done else ""))
-    if todo and sweep.evaluate:
-        _evaluate(sweep, out, data_dir, echo)
-    elif todo:
-        _train(sweep, out, todo, data_dir, echo)
-    rows = rows_of(out, echo)
-    for name in sweep_report.write(out, sweep.keys, rows):
-        echo(f"wrote {out / name}")
+    with hold_directory(out, "the sweep"):
+        _claim(out, sweep)
+        done = {row["member"] for row in rows_of(out, echo)}
+        todo = [i for i in range(len(sweep.members)) if i not in done]
+        kind = "evaluation" if sweep.evaluate else "training"
+        echo(f"sweep of {len(sweep.members)} members ({kind}; {', '.join(sweep.keys)}) → {out}"
+             + (f"; {len(done)} done before" if done else ""))
+        if todo and sweep.evaluate:
+            _evaluate(sweep, out, data_dir, echo)
+        elif todo:
+            _train(sweep, out, todo, data_dir, echo)
+        rows = rows_of(out, echo)
+        for name in sweep_report.write(out, sweep.keys, rows):
+            echo(f"wrote {out / name}")
     return out
 
 

@@ -21,6 +21,7 @@ from agents import sweep, sweep_spec
 from agents.commands import train_commands
 from agents.config import ConfigError
 from agents.tasks import jump, physics
+from jaxsim.atomic import OutputError, hold_directory
 from conftest import tiny_highjump_training
 
 
@@ -184,6 +185,15 @@ def test_a_rerun_with_another_table_is_refused(tmp_path):
     config.write_text(config.read_text().replace("[0, 1, 2]", "[0, 1]"))
     with pytest.raises(ConfigError, match="holds another sweep"):
         sweep.run(config, out)
+
+
+def test_a_sweep_another_process_holds_is_refused_before_it_writes(tmp_path):
+    config = _reach_sweep(tmp_path, iterations=1)
+    out = tmp_path / "out"
+    with hold_directory(out, "the sweep"):
+        with pytest.raises(OutputError, match=rf"{out}: the sweep is in use by process "):
+            sweep.run(config, out)
+    assert sorted(p.name for p in out.iterdir()) == [".lock"]
 
 
 def test_seeds_trained_in_one_program_equal_the_trainings_run_alone(tmp_path):
