@@ -127,10 +127,12 @@ def filmstrip_sheet(episodes, path: Path, panels: int = 10):
     from agents.discovery import pictures
     from agents.discovery.gallery import drawing_env
     from jaxsim import render
-    rows = []
+    rows, envs = [], {}
     with tempfile.TemporaryDirectory() as scratch:
         for label, directory, run_dir in episodes:
-            env = drawing_env(run_dir)
+            if run_dir not in envs:                  # (rows of one run share its world)
+                envs[run_dir] = drawing_env(run_dir)
+            env = envs[run_dir]
             poses, control_dt, task = read_episode(directory, env.q0.dtype)
             _, along = pictures.bar_directions(env, task)
             row = Path(scratch) / f"{len(rows)}.png"

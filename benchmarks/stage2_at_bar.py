@@ -93,13 +93,13 @@ def main(argv=None):
         write_text_atomic(config_path, "# Stage 2 from a policy at a lower bar "
                           "(benchmarks/stage2_at_bar.py)\n" + stage2_search.to_toml(sections))
     say = lambda text="": print(f"  [stage2 at {args.start.name[4:]} m] {text}", flush=True)
-    # The round's own length and stop; given again on a rerun, a finished round trains on.
+    # The round's own length and stop, from the command line: given more on a rerun, a
+    # finished round trains on; given the same, it is only measured again.
     length = [f"run.iterations={args.iterations}", f"run.stop_difficulty={args.stop_bar}"]
-    if trainer_lib.has_checkpoint(run_dir):
-        train_commands.train(resume=run_dir, overrides=length, data_dir=args.data_dir, echo=say)
-    else:
-        train_commands.train(config_path, run_dir, overrides=length, data_dir=args.data_dir,
-                             echo=say)
+    finished = lambda config, last: (last.get("iteration", 0) >= args.iterations
+                                     or trainer_lib.reached(last, args.stop_bar))
+    train_commands.train_or_resume(config_path, run_dir, length, args.data_dir, say, finished,
+                                   lambda config, last: length)
     result = jump_black_box.measure(args.out, run_dir, args.episodes, args.data_dir,
                                     x=start_result["x"], stage=2, start=str(args.start))
     if result["outcome"] != "success":
