@@ -4,6 +4,9 @@
                                          # source skeleton above, retargeted humanoid below
     python benchmarks/pvae.py train      # build the dataset and train configs/pvae.toml, timed;
                                          # PCA, loss, joint-error and sample figures into docs/
+    python benchmarks/pvae.py unseen runs/pvae [runs/pvae_acro ...] [--out FILE.json]
+                                         # how each trained P-VAE reconstructs the thesis's real
+                                         # high jumps and sprint, which no P-VAE saw
 
 Needs the reference data (TAKEOFF_DATA, default ../shared/data) and matplotlib.
 """
@@ -14,9 +17,12 @@ import shutil
 import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from agents.commands import pvae_commands
+from agents.pose import pose_dataset, pose_features, pvae, pvae_report
 from jaxsim import allocator, characters, motion, render
 from jaxsim.atomic import write_text_atomic
 from jaxsim.motion import retarget as rt
@@ -87,6 +93,43 @@ def train_and_figures(args):
     print(json.dumps(summary, indent=2))
 
 
+# The thesis's own mocap (jump/motions), never in a P-VAE's dataset (thesis §3.4.2: "none of
+# these databases consist of high jumps").
+UNSEEN = {"flop": "VC5_high_jump__fosbury_flop_06.txt", "straddle": "VC5_high_jump__straddle_02.txt",
+          "scissor": "VC5_high_jump__scissor_01.txt", "curved sprint": "VC5_sprint__curves_03.txt"}
+HARDEST_WINDOW = 10      # frames at 30 Hz: the hardest third of a second of each clip
+
+
+def unseen_errors(args):
+    """Mean joint-angle error of each P-VAE on each unseen clip, over the clip and over its
+    hardest third of a second (for the flop, its bar crossing)."""
+    model = characters.humanoid()
+    featurise = jax.jit(jax.vmap(lambda q: (pose_features.pose_features(model, q),
+                                            pose_features.pd_target(model, q))))
+    clips = {}
+    for name, file in UNSEEN.items():
+        poses = pose_dataset.resample(motion.load_motion(reference_data("jump") / "jump" / "motions" / file,
+                                                         model))
+        clips[name] = featurise(jnp.asarray(poses, model.mass.dtype))
+    table = {}
+    for run in args.runs:
+        decoder = pvae.load_decoder(run, model)
+        table[run] = {}
+        for name, (features, targets) in clips.items():
+            vae, base = (np.degrees(np.asarray(e).mean(1)) for e in
+                         pvae_report.reconstruction_errors(model, decoder, features, targets))
+            window = np.convolve(vae, np.ones(HARDEST_WINDOW) / HARDEST_WINDOW, "valid")
+            table[run][name] = {"mean": float(vae.mean()), "hardest_third_second": float(
+                window.max()), "at_second": float(window.argmax() / pose_dataset.FRAME_RATE),
+                "mean_pose": float(base.mean())}
+            print(f"{run:<22} {name:<14} mean {vae.mean():5.1f}°  hardest 1/3 s "
+                  f"{window.max():5.1f}° at {window.argmax() / pose_dataset.FRAME_RATE:4.2f} s  "
+                  f"(mean pose {base.mean():5.1f}°)")
+    if args.out:
+        write_text_atomic(args.out, json.dumps({"machine": machine_info(), "errors_degrees":
+                                                table}, indent=2) + "\n")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -95,6 +138,10 @@ def main():
     p.add_argument("--azimuth", type=float, default=20.0)
     p.set_defaults(run=retarget_figures)
     sub.add_parser("train").set_defaults(run=train_and_figures)
+    p = sub.add_parser("unseen")
+    p.add_argument("runs", nargs="+", help="P-VAE run directories (takeoff pvae train)")
+    p.add_argument("--out", help="write the table as JSON here")
+    p.set_defaults(run=unseen_errors)
     args = parser.parse_args()
     args.run(args)
 

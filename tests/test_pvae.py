@@ -142,6 +142,21 @@ def test_validation_split_holds_out_whole_clips(dataset):
     assert 0.1 <= held.mean() < 0.25
 
 
+def test_repeated_clips_weigh_their_training_poses_and_a_pattern_must_match(dataset):
+    built = dataset[0]
+    names = list(built.clip_names)
+    flips = [names.index("deepmimic/humanoid3d_backflip"), names.index("deepmimic/humanoid3d_sideflip")]
+    repeats = pose_dataset.pose_repeats(built, ("deepmimic/humanoid3d_*flip",), 7, "poses.npz")
+    in_flips = np.isin(built.clip_index, flips)
+    assert in_flips.sum() > 50
+    assert np.all(repeats[in_flips] == 7) and np.all(repeats[~in_flips] == 1)
+    with pytest.raises(pose_dataset.DatasetError, match=r"poses.npz: .*'deepmimic/backflip' "
+                                                        r"matches none"):
+        pose_dataset.pose_repeats(built, ("deepmimic/backflip",), 7, "poses.npz")
+    with pytest.raises(ValueError, match="repeat_count must be at least 1"):
+        pvae.DataSettings(repeat_count=0)
+
+
 @pytest.fixture(scope="module")
 def short_run(dataset, tmp_path_factory):
     built, _, path = dataset
@@ -199,13 +214,20 @@ def test_cli_trains_from_a_config_and_writes_the_report(dataset, tmp_path, capsy
     config = tmp_path / "pvae.toml"
     config.write_text(f'[data]\ndataset = "{tmp_path / "subset.npz"}"\n[train]\nepochs = 2\n')
     assert cli.main(["pvae", "train", str(config), "--out", str(tmp_path / "run"),
-                     "--set", "model.latent_size=8"]) == 0
+                     "--set", "model.latent_size=8", "--set", 'data.repeat_clips=["deepmimic/*"]',
+                     "--set", "data.repeat_count=3"]) == 0
+    train_mask, _ = pose_dataset.split_by_clip(subset, 0.1, 0)
+    deepmimic = np.char.startswith(subset.clip_names[subset.clip_index].astype(str), "deepmimic/")
+    assert (train_mask & deepmimic).sum() > 0
+    per_epoch = train_mask.sum() + 2 * (train_mask & deepmimic).sum()
+    printed = capsys.readouterr().out
+    assert f"{per_epoch} training poses per epoch, {train_mask.sum()} distinct" in printed
+    assert "epoch   2/2" in printed
     report = json.loads((tmp_path / "run" / "report.json").read_text())
     assert report["final"]["epoch"] == 2 and len(report["held_out_joint_error_degrees"]) == 12
     for name in ("pvae.msgpack", "normalisation.npz", "config.json", "losses.png",
                  "joint_errors.png", "samples.png", "report.md"):
         assert (tmp_path / "run" / name).exists(), name
-    assert "epoch   2/2" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="run already holds a run; pick another --out"):
         cli.main(["pvae", "train", str(config), "--out", str(tmp_path / "run")])
     with pytest.raises(SystemExit, match="latent_size"):

@@ -8,6 +8,7 @@ keeps the index of its clip, so a validation split can hold out whole clips.
 """
 
 import dataclasses
+import fnmatch
 import os
 from pathlib import Path
 
@@ -194,3 +195,18 @@ def principal_variance(features: np.ndarray, standardise: bool) -> np.ndarray:
 def components_needed(share: np.ndarray, threshold: float) -> int:
     """How many principal components explain at least `threshold` of the variance."""
     return int(np.searchsorted(share, threshold) + 1)
+
+
+def pose_repeats(dataset: PoseDataset, patterns, count: int, source) -> np.ndarray:
+    """How many times each pose (N,) enters a training epoch: `count` for the poses of clips
+    whose names match one of the glob `patterns` ("deepmimic/humanoid3d_*flip"), else 1. A
+    pattern that matches no clip is a `DatasetError` naming it and `source`."""
+    names = [str(n) for n in dataset.clip_names]
+    chosen = np.zeros(len(names), bool)
+    for pattern in patterns:
+        matches = np.array([fnmatch.fnmatchcase(n, pattern) for n in names], bool)
+        if not matches.any():
+            raise DatasetError(f"{source}: data.repeat_clips pattern {pattern!r} matches none "
+                               f"of its {len(names)} clips (names look like {names[0]!r})")
+        chosen |= matches
+    return np.where(chosen[dataset.clip_index], count, 1)

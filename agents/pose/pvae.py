@@ -41,11 +41,15 @@ class DataSettings:
     dataset: str = "poses.npz"             # built by `takeoff pvae dataset`
     validation_fraction: float = 0.1       # of the poses, held out as whole clips
     split_seed: int = 0
+    repeat_clips: tuple[str, ...] = ()     # glob patterns of clip names whose training poses ...
+    repeat_count: int = 1                  # ... appear this many times per epoch
 
     def __post_init__(self):
         if not 0.0 < self.validation_fraction < 0.5:
             raise ValueError(f"validation_fraction must be in (0, 0.5); got "
                              f"{self.validation_fraction}")
+        if self.repeat_count < 1:
+            raise ValueError(f"repeat_count must be at least 1; got {self.repeat_count}")
 
 
 @dataclass(frozen=True)
@@ -189,13 +193,22 @@ class TrainResult:
 
 
 def train(config: PVAEConfig, dataset: pose_dataset.PoseDataset, echo=print) -> TrainResult:
-    """Fit the P-VAE on the training clips; report held-out reconstruction every epoch."""
+    """Fit the P-VAE on the training clips (those matching `data.repeat_clips` repeated
+    `data.repeat_count` times, so rare motions weigh more); report held-out reconstruction
+    every epoch. The held-out clips are never repeated."""
     train_mask, held_mask = pose_dataset.split_by_clip(dataset, config.data.validation_fraction,
                                                        config.data.split_seed)
-    norm = Normalisation.fit(dataset.features[train_mask], dataset.targets[train_mask])
+    repeats = pose_dataset.pose_repeats(dataset, config.data.repeat_clips,
+                                        config.data.repeat_count, config.data.dataset)
+    train_rows = np.repeat(np.flatnonzero(train_mask), repeats[train_mask])
+    if config.data.repeat_clips:
+        echo(f"repeating the training poses of {', '.join(config.data.repeat_clips)} "
+             f"{config.data.repeat_count} times: {len(train_rows)} training poses per epoch, "
+             f"{int(train_mask.sum())} distinct")
+    norm = Normalisation.fit(dataset.features[train_rows], dataset.targets[train_rows])
     x = (jnp.asarray(dataset.features) - norm.feature_mean) / norm.feature_std
     y = (jnp.asarray(dataset.targets) - norm.target_mean) / norm.target_std
-    x_train, y_train, x_held, y_held = x[train_mask], y[train_mask], x[held_mask], y[held_mask]
+    x_train, y_train, x_held, y_held = x[train_rows], y[train_rows], x[held_mask], y[held_mask]
     settings = config.train
     if x_train.shape[0] < settings.batch_size:
         raise pose_dataset.DatasetError(

@@ -28,22 +28,28 @@ def held_out_errors(model: Model, config: PVAEConfig, dataset: pose_dataset.Pose
     mean pose)}, and the number of held-out poses."""
     _, held = pose_dataset.split_by_clip(dataset, config.data.validation_fraction,
                                          config.data.split_seed)
-    norm = result.normalisation
-    decoder = PoseDecoder(result.params, norm, network_of(config, dataset.targets.shape[1]))
+    decoder = PoseDecoder(result.params, result.normalisation,
+                          network_of(config, dataset.targets.shape[1]))
+    vae, base = (np.degrees(np.asarray(e).mean(0)) for e in reconstruction_errors(
+        model, decoder, dataset.features[held], dataset.targets[held]))
+    names = [model.topology.names[i] for i in pose_features.PoseLayout.of(model).actuated]
+    return {n: (float(v), float(b)) for n, v, b in zip(names, vae, base)}, int(held.sum())
+
+
+def reconstruction_errors(model: Model, decoder: PoseDecoder, features, targets):
+    """Per-pose, per-joint angle errors (radians, (N, k)) of each pose encoded to its posterior
+    mean and decoded, and of the decoder's mean pose, against the true decoder targets."""
+    norm = decoder.normalisation
 
     @jax.jit
     def errors(decoder, features, truth):
-        """Per-pose, per-joint angle errors of the P-VAE and of the mean pose (radians)."""
         x = (features - norm.feature_mean) / norm.feature_std
         mean, _ = decoder.network.apply({"params": decoder.params}, x, method=PVAE.encode)
         per_pose = jax.vmap(lambda a, b: pose_features.joint_angle_errors(model, a, b))
         baseline = jnp.broadcast_to(norm.target_mean, truth.shape)
         return per_pose(decoder.target(mean), truth), per_pose(baseline, truth)
 
-    vae, base = (np.degrees(np.asarray(e).mean(0)) for e in errors(
-        decoder, jnp.asarray(dataset.features[held]), jnp.asarray(dataset.targets[held])))
-    names = [model.topology.names[i] for i in pose_features.PoseLayout.of(model).actuated]
-    return {n: (float(v), float(b)) for n, v, b in zip(names, vae, base)}, int(held.sum())
+    return errors(decoder, jnp.asarray(features), jnp.asarray(targets))
 
 
 def decoded_samples(model: Model, decoder: PoseDecoder, latent_size: int, count: int,
