@@ -119,12 +119,13 @@ def unseen_errors(args):
             vae, base = (np.degrees(np.asarray(e).mean(1)) for e in
                          pvae_report.reconstruction_errors(model, decoder, features, targets))
             window = np.convolve(vae, np.ones(HARDEST_WINDOW) / HARDEST_WINDOW, "valid")
-            table[run][name] = {"mean": float(vae.mean()), "hardest_third_second": float(
-                window.max()), "at_second": float(window.argmax() / pose_dataset.FRAME_RATE),
-                "mean_pose": float(base.mean())}
-            print(f"{run:<22} {name:<14} mean {vae.mean():5.1f}°  hardest 1/3 s "
-                  f"{window.max():5.1f}° at {window.argmax() / pose_dataset.FRAME_RATE:4.2f} s  "
-                  f"(mean pose {base.mean():5.1f}°)")
+            row = {"mean": float(vae.mean()), "hardest_third_second": float(window.max()),
+                   "starting_at_second": float(window.argmax() / pose_dataset.FRAME_RATE),
+                   "mean_pose": float(base.mean())}
+            table[run][name] = row
+            print(f"{run:<22} {name:<14} mean {row['mean']:5.1f}°  hardest 1/3 s "
+                  f"{row['hardest_third_second']:5.1f}° starting at "
+                  f"{row['starting_at_second']:4.2f} s  (mean pose {row['mean_pose']:5.1f}°)")
     if args.out:
         write_text_atomic(args.out, json.dumps({"machine": machine_info(), "errors_degrees":
                                                 table}, indent=2) + "\n")

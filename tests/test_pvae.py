@@ -155,6 +155,11 @@ def test_repeated_clips_weigh_their_training_poses_and_a_pattern_must_match(data
         pose_dataset.pose_repeats(built, ("deepmimic/backflip",), 7, "poses.npz")
     with pytest.raises(ValueError, match="repeat_count must be at least 1"):
         pvae.DataSettings(repeat_count=0)
+    with pytest.raises(ValueError,
+                       match=r"go together; got repeat_clips = \[\], repeat_count = 3"):
+        pvae.DataSettings(repeat_count=3)
+    with pytest.raises(ValueError, match="go together"):
+        pvae.DataSettings(repeat_clips=("deepmimic/*",))
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +221,9 @@ def test_cli_trains_from_a_config_and_writes_the_report(dataset, tmp_path, capsy
     assert cli.main(["pvae", "train", str(config), "--out", str(tmp_path / "run"),
                      "--set", "model.latent_size=8", "--set", 'data.repeat_clips=["deepmimic/*"]',
                      "--set", "data.repeat_count=3"]) == 0
-    train_mask, _ = pose_dataset.split_by_clip(subset, 0.1, 0)
+    defaults = pvae.DataSettings()
+    train_mask, _ = pose_dataset.split_by_clip(subset, defaults.validation_fraction,
+                                               defaults.split_seed)
     deepmimic = np.char.startswith(subset.clip_names[subset.clip_index].astype(str), "deepmimic/")
     assert (train_mask & deepmimic).sum() > 0
     per_epoch = train_mask.sum() + 2 * (train_mask & deepmimic).sum()

@@ -50,6 +50,10 @@ class DataSettings:
                              f"{self.validation_fraction}")
         if self.repeat_count < 1:
             raise ValueError(f"repeat_count must be at least 1; got {self.repeat_count}")
+        if bool(self.repeat_clips) != (self.repeat_count > 1):
+            raise ValueError(f"repeat_clips and a repeat_count above 1 go together; got "
+                             f"repeat_clips = {list(self.repeat_clips)}, repeat_count = "
+                             f"{self.repeat_count}")
 
 
 @dataclass(frozen=True)
@@ -194,8 +198,9 @@ class TrainResult:
 
 def train(config: PVAEConfig, dataset: pose_dataset.PoseDataset, echo=print) -> TrainResult:
     """Fit the P-VAE on the training clips (those matching `data.repeat_clips` repeated
-    `data.repeat_count` times, so rare motions weigh more); report held-out reconstruction
-    every epoch. The held-out clips are never repeated."""
+    `data.repeat_count` times, so rare motions weigh more: in the loss, in the normalisation and
+    so in the decoder's mean pose, and in the number of steps an epoch takes); report held-out
+    reconstruction every epoch. The held-out clips are never repeated."""
     train_mask, held_mask = pose_dataset.split_by_clip(dataset, config.data.validation_fraction,
                                                        config.data.split_seed)
     repeats = pose_dataset.pose_repeats(dataset, config.data.repeat_clips,

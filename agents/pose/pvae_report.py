@@ -39,10 +39,9 @@ def held_out_errors(model: Model, config: PVAEConfig, dataset: pose_dataset.Pose
 def reconstruction_errors(model: Model, decoder: PoseDecoder, features, targets):
     """Per-pose, per-joint angle errors (radians, (N, k)) of each pose encoded to its posterior
     mean and decoded, and of the decoder's mean pose, against the true decoder targets."""
-    norm = decoder.normalisation
-
     @jax.jit
     def errors(decoder, features, truth):
+        norm = decoder.normalisation
         x = (features - norm.feature_mean) / norm.feature_std
         mean, _ = decoder.network.apply({"params": decoder.params}, x, method=PVAE.encode)
         per_pose = jax.vmap(lambda a, b: pose_features.joint_angle_errors(model, a, b))
