@@ -520,9 +520,11 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
         assert retrained.run.iterations == 3                     # ⌈jump.samples 48 / 16⌉
         assert retrained.run.stop_difficulty == retrained.task.z_freeze
 
-    # Killed while round 003 trained (its checkpoint there, no result), after 002 had written
-    # its config but before it trained: the rerun resumes 003, starts 002 from its config as
-    # written (its known set as decided then), and leaves 000 and 001 alone.
+    # Killed while round 003 was being measured (its training finished, no result), after 002
+    # had written its config but before it trained: the rerun starts 002 from its config as
+    # written (its known set as decided then), measures 003 without training it again, and
+    # leaves 000 and 001 alone. (A round part way through its iterations resumes: the shared
+    # rule train_commands.train_or_resume, tested with the sweep and the jump black box.)
     (out / "003" / jump_black_box.RESULT).unlink()
     (out / "002" / jump_black_box.RESULT).unlink()
     shutil.rmtree(out / "002" / "train")
@@ -530,7 +532,7 @@ def test_stage2_rounds_grow_the_known_set_and_a_killed_stage2_goes_on(tmp_path, 
     calls.clear()
     measured.clear()
     assert stage2_search.run(directory, out=out, echo=QUIET) == rows
-    assert calls == [("start", out / "002" / "train"), ("resume", out / "003" / "train")]
+    assert calls == [("start", out / "002" / "train")]
     assert measured == [2, 3]
     assert (out / "002" / stage2_search.KNOWN).read_text() == known_002
     with pytest.raises(ConfigError, match="holds a Stage 2 of 2 rounds, and --rounds 1 asks "

@@ -302,22 +302,19 @@ def _run_round(search_dir, out, entry, plan, search_config, data_dir, echo):
     echo(f"[stage2 {index:03d}] round {entry['round'] + 1}/{plan['rounds']} from evaluation "
          f"{entry['evaluation']} (Stage-1 strategy {entry['strategy']})")
     say = jump_black_box._prefixed(f"  [stage2 {index:03d}] ")
-    if trainer_lib.has_checkpoint(run_dir):
-        train_commands.train(resume=run_dir, data_dir=data_dir, echo=say)   # (a finished one
-    else:                                                                    # trains no more)
-        config_path = directory / RUN_CONFIG
-        if not config_path.exists():
-            _stage1_policy(search_dir, search_config, entry["evaluation"], data_dir, echo)
-            known = stage2.found_policies(search_dir, out)
-            stage1_run = (jump_black_box.evaluation_dir(search_dir, entry["evaluation"])
-                          / jump_black_box.TRAIN)
-            _write_json(directory / KNOWN, [{"policy": p.name, "cross_rotvec": p.cross_rotvec}
-                                            for p in known])
-            sections = stage2_sections(stage1_run, [p.cross_rotvec for p in known],
-                                       plan["iterations"], plan.get("sigma"))
-            write_text_atomic(config_path, f"# Stage 2 (takeoff stage2), round "
-                              f"{entry['round'] + 1} from {stage1_run}\n" + to_toml(sections))
-        train_commands.train(config_path, run_dir, data_dir=data_dir, echo=say)
+    config_path = directory / RUN_CONFIG
+    if not config_path.exists():
+        _stage1_policy(search_dir, search_config, entry["evaluation"], data_dir, echo)
+        known = stage2.found_policies(search_dir, out)
+        stage1_run = (jump_black_box.evaluation_dir(search_dir, entry["evaluation"])
+                      / jump_black_box.TRAIN)
+        _write_json(directory / KNOWN, [{"policy": p.name, "cross_rotvec": p.cross_rotvec}
+                                        for p in known])
+        sections = stage2_sections(stage1_run, [p.cross_rotvec for p in known],
+                                   plan["iterations"], plan.get("sigma"))
+        write_text_atomic(config_path, f"# Stage 2 (takeoff stage2), round "
+                          f"{entry['round'] + 1} from {stage1_run}\n" + to_toml(sections))
+    train_commands.train_or_resume(config_path, run_dir, data_dir=data_dir, echo=say)
     config = train_commands.load_run_config(run_dir)
     result = jump_black_box.measure(
         directory, run_dir, search_config["jump"]["episodes"], data_dir, index=index,
