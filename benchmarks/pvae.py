@@ -17,12 +17,10 @@ import shutil
 import time
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from agents.commands import pvae_commands
-from agents.pose import pose_dataset, pose_features, pvae, pvae_report
+from agents.pose import pose_dataset, pvae, pvae_report
 from jaxsim import allocator, characters, motion, render
 from jaxsim.atomic import write_text_atomic
 from jaxsim.motion import retarget as rt
@@ -104,13 +102,9 @@ def unseen_errors(args):
     """Mean joint-angle error of each P-VAE on each unseen clip, over the clip and over its
     hardest third of a second (for the flop, its bar crossing)."""
     model = characters.humanoid()
-    featurise = jax.jit(jax.vmap(lambda q: (pose_features.pose_features(model, q),
-                                            pose_features.pd_target(model, q))))
-    clips = {}
-    for name, file in UNSEEN.items():
-        poses = pose_dataset.resample(motion.load_motion(reference_data("jump") / "jump" / "motions" / file,
-                                                         model))
-        clips[name] = featurise(jnp.asarray(poses, model.mass.dtype))
+    motions = reference_data("jump") / "jump" / "motions"
+    clips = {name: pose_dataset.featurise(model, pose_dataset.resample(
+        motion.load_motion(motions / file, model))) for name, file in UNSEEN.items()}
     table = {}
     for run in args.runs:
         decoder = pvae.load_decoder(run, model)

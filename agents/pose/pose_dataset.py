@@ -90,18 +90,27 @@ def source_clips(data_dir, model: Model):
 
 def build(data_dir, model: Model, echo=print) -> PoseDataset:
     """Collect, resample and featurise every source clip (see the module docstring)."""
-    featurise = jax.jit(jax.vmap(lambda q: (pose_features.pose_features(model, q),
-                                            pose_features.pd_target(model, q))))
     names, pose_blocks = [], []
     for name, clip in source_clips(data_dir, model):
         pose_blocks.append(resample(clip))
         names.append(name)
         echo(f"  {name:<40} {len(pose_blocks[-1]):>6} poses")
     poses = np.concatenate(pose_blocks)
-    features, targets = (np.asarray(a) for a in featurise(poses.astype(model.mass.dtype)))
+    features, targets = (np.asarray(a) for a in featurise(model, poses))
     clip_index = np.repeat(np.arange(len(names)), [len(b) for b in pose_blocks])
     return PoseDataset(features.astype(np.float32), targets.astype(np.float32),
                        poses.astype(np.float32), clip_index.astype(np.int32), np.array(names))
+
+
+def featurise(model: Model, poses):
+    """The encoder features (N, F) and decoder targets (N, K) of poses (N, nq)."""
+    return _featurise(model, jax.numpy.asarray(poses, model.mass.dtype))
+
+
+@jax.jit
+def _featurise(model: Model, poses):
+    return jax.vmap(lambda q: (pose_features.pose_features(model, q),
+                               pose_features.pd_target(model, q)))(poses)
 
 
 def save(dataset: PoseDataset, path):
