@@ -1,6 +1,6 @@
 """The README as a newcomer uses it: every Python block and every command line of it runs as
 written, made small by a few overrides (fewer iterations, environments and epochs; a smaller
-batch; a data folder with one clip of each kind), in a fresh folder beside which the configs
+batch; a data folder with a few clips of each kind), in a fresh folder beside which the configs
 and benchmarks are linked. Anything a user types from the README that fails fails here."""
 
 import os
@@ -64,7 +64,7 @@ def smaller(words, small_data):
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory, data_dir):
     """A fresh folder with the configs and benchmarks linked, a small data folder (one CMU
-    clip per subject, one DeepMimic clip), and an environment whose data default is the
+    clip per subject, a DeepMimic walk and flip), and an environment whose data default is the
     reference data and whose compilations are cached across the commands."""
     home = tmp_path_factory.mktemp("readme")
     for name in ("configs", "benchmarks"):
@@ -75,8 +75,9 @@ def workspace(tmp_path_factory, data_dir):
         for name in (f"{subject}.asf", f"{subject}_01.amc"):
             (small / "cmu" / subject / name).symlink_to(data_dir / "cmu" / subject / name)
     (small / "deepmimic" / "motions").mkdir(parents=True)
-    (small / "deepmimic" / "motions" / "humanoid3d_walk.txt").symlink_to(
-        data_dir / "deepmimic" / "motions" / "humanoid3d_walk.txt")
+    for clip in ("humanoid3d_walk.txt", "humanoid3d_backflip.txt"):   # the flip: repeat_clips
+        (small / "deepmimic" / "motions" / clip).symlink_to(
+            data_dir / "deepmimic" / "motions" / clip)
     env = {**os.environ, "TAKEOFF_DATA": str(data_dir),
            "JAX_COMPILATION_CACHE_DIR": str(home / "jax_cache"),
            "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
