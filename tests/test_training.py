@@ -11,7 +11,7 @@ import pytest
 
 from agents.commands import cli, train_commands
 from agents.rl import trainer as trainer_lib
-from agents.checkpoint import CheckpointError
+from agents.checkpoint import CheckpointError, previous_path
 from agents.config import ConfigError
 from agents.rl.env import end_of_step, start_of_episode
 from agents.rl.ppo import PPOSettings
@@ -472,3 +472,25 @@ def test_a_directory_or_an_empty_file_is_not_a_config(tmp_path):
     (tmp_path / "empty.toml").write_text("")
     with pytest.raises(SystemExit, match=r"empty\.toml: the file holds no settings"):
         cli.main(["train", str(tmp_path / "empty.toml")])
+
+
+@pytest.mark.parametrize("stop", ["run.iterations=3", "run.time_limit_minutes=1e-6"])
+def test_the_record_that_says_a_run_stopped_is_logged_after_its_checkpoint(
+        tmp_path, monkeypatch, stop):
+    """A run killed just after logging its last record must not leave a log that says
+    "finished" beside an older checkpoint (the commands that resume trainings would measure
+    that older policy): when the last record is appended, the final checkpoint is on disk."""
+    append, on_disk = trainer_lib.runlog.append, {}
+
+    def append_noting_the_checkpoint(path, record):
+        checkpoint = path.parent / trainer_lib.CHECKPOINT
+        on_disk[record["iteration"]] = checkpoint.read_bytes() if checkpoint.exists() else None
+        append(path, record)
+
+    monkeypatch.setattr(trainer_lib.runlog, "append", append_noting_the_checkpoint)
+    small_run(tmp_path, 5, extra=["run.checkpoint_every=100", stop])
+    run_dir = tmp_path / "run"
+    last = trainer_lib.read_metrics(run_dir)[-1]["iteration"]
+    assert last == (3 if "iterations" in stop else 1)
+    assert on_disk[last] == (run_dir / trainer_lib.CHECKPOINT).read_bytes()
+    assert not previous_path(run_dir / trainer_lib.CHECKPOINT).exists()   # saved once

@@ -27,11 +27,13 @@ The Python loop in `run` only logs (`metrics.jsonl`, one line per iteration, rea
 policy of `jaxsim.runlog`), shows progress (saying when it compiles, and leaving compile time out
 of the time it estimates), checkpoints atomically with a checksum every `checkpoint_every`
 iterations and at the end, keeping the one before (`agents.checkpoint`: a damaged checkpoint is
-passed over for it), and on Ctrl-C saves a checkpoint before it stops. Each iteration also
-reports one flag, computed in the compiled
-function, that its rewards, observation statistics, losses and network parameters are all
-finite; when they are not, the loop stops with a `TrainingError` naming the iteration and the
-quantities, and saves nothing, so the last checkpoint (of finite weights) is kept.
+passed over for it), and on Ctrl-C saves a checkpoint before it stops. The end's checkpoint is
+written before the end's record is logged, so a log whose last record says the run stopped (all
+its iterations, its time limit, its stop difficulty: what the commands that resume trainings
+judge "finished" by) always has that iteration's checkpoint beside it, even after a kill. Each
+iteration also reports one flag, computed in the compiled function, that its rewards,
+observation statistics, losses and network parameters are all finite; when they are not, the
+loop stops with a `TrainingError` naming the iteration and the quantities, and saves nothing, so the last checkpoint (of finite weights) is kept.
 """
 
 import copy
@@ -477,18 +479,23 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
                       "seconds": now - started,
                       **{k: _json_value(v) for k, v in metrics.items()}}
             last_time = now
+            interrupted, time_up = stop.agreed(  # (in one process: no one to ask)
+                record["iteration"], settings.time_limit_minutes
+                and now - resumed_at > 60 * settings.time_limit_minutes)
+            stopping = (record["iteration"] >= settings.iterations or time_up
+                        or reached(record, settings.stop_difficulty))
+            if stopping:    # saved before the record that says the run stopped is logged: a
+                _save(trainer, new_state, run_dir, writer)   # log that says so has its state
+                saved = record["iteration"]
             if writer:
                 runlog.append(run_dir / METRICS, record)
             state = new_state
             if record["iteration"] % settings.progress_every == 0:
                 echo(_line(record, settings.iterations,
                            timed_seconds / timed_iterations if timed_iterations else None))
-            if record["iteration"] % settings.checkpoint_every == 0:
+            if record["iteration"] % settings.checkpoint_every == 0 and not stopping:
                 _save(trainer, state, run_dir, writer)
                 saved = record["iteration"]
-            interrupted, time_up = stop.agreed(  # (in one process: no one to ask)
-                record["iteration"], settings.time_limit_minutes
-                and now - resumed_at > 60 * settings.time_limit_minutes)
             if interrupted:
                 raise KeyboardInterrupt
             if time_up:
@@ -505,8 +512,6 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
         raise
     finally:
         stop.close()
-    if completed_iterations(state) != saved:  # (saving it again would push out the previous
-        _save(trainer, state, run_dir, writer)  # checkpoint, the fallback from a damaged one)
     return state
 
 
