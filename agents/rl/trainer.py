@@ -33,7 +33,8 @@ its iterations, its time limit, its stop difficulty: what the commands that resu
 judge "finished" by) always has that iteration's checkpoint beside it, even after a kill. Each
 iteration also reports one flag, computed in the compiled function, that its rewards,
 observation statistics, losses and network parameters are all finite; when they are not, the
-loop stops with a `TrainingError` naming the iteration and the quantities, and saves nothing, so the last checkpoint (of finite weights) is kept.
+loop stops with a `TrainingError` naming the iteration and the quantities, and saves nothing,
+so the last checkpoint (of finite weights) is kept.
 """
 
 import copy
