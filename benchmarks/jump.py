@@ -16,8 +16,9 @@
     python benchmarks/jump.py report RUN_DIR --name highjump_fosbury [--out docs]
         the figures of a training run into --out (default docs/): its curriculum curve
         (`takeoff plot`), the deterministic jump as a filmstrip with bar and mat, the peak pose
-        from two views (along the bar and facing it), and its summary with the crossing
-        feature as NAME.json (into --out, default benchmarks/results/)
+        from two views (along the bar and facing it) and, as the gallery draws it, along the
+        bar and from above and below (Fig. 3.4), and its summary with the crossing feature as
+        NAME.json (into --out, default benchmarks/results/)
 
 Learning runs are `takeoff train configs/highjump.toml` (docs/benchmarks.md gives the commands
 and the figures). Needs the reference data (TAKEOFF_DATA, default ../shared/data) and a trained
@@ -38,6 +39,7 @@ from agents.commands import train_commands
 from agents.rl import trainer as trainer_lib
 from agents.pose import pose_features
 from agents.commands.cli import run_errors
+from agents.discovery import pictures
 from agents.tasks import jump, registry, takeoff_state
 from jaxsim import allocator, batch_last, kinematics, render, simulation, xla_options
 from jaxsim.atomic import write_text_atomic
@@ -201,6 +203,8 @@ def report(args):
                  azimuths=(_azimuth(along), _azimuth(normal)),
                  labels=(f"along the {thing}", f"facing the {thing}"),
                  title=f"peak pose (t = {times[peak]:.2f} s, centre of mass {heights[peak]:.2f} m)")
+    pictures.peak_above_below(env, poses, task, out / f"{args.name}_above_below.png",
+                              control_dt=env.control_dt)
     records = trainer_lib.read_metrics(run)
     result = {"machine": machine_info(), "run": str(run), "iterations": records[-1]["iteration"],
               "samples": records[-1]["samples"], "minutes": records[-1]["seconds"] / 60,
