@@ -119,5 +119,6 @@ def test_every_command_line_runs_in_order(workspace):
             words = [sys.executable if words[0] == "python" else words[0], *words[1:]]
         run(words, home, env)
     for made in ("humanoid.xml", "poses.npz", "runs/pvae/pvae.msgpack", "walk.gif", "jump.gif",
-                 "runs/imitate_walk/learning_curve.png", "runs/report/flop_peak.png", "runs/report/flop_above_below.png"):
+                 "runs/imitate_walk/learning_curve.png", "runs/report/flop_peak.png",
+                 "runs/report/flop_above_below.png"):
         assert (home / made).exists(), made

@@ -485,8 +485,10 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
                 and now - resumed_at > 60 * settings.time_limit_minutes)
             stopping = (record["iteration"] >= settings.iterations or time_up
                         or reached(record, settings.stop_difficulty))
-            if stopping:    # saved before the record that says the run stopped is logged: a
-                _save(trainer, new_state, run_dir, writer)   # log that says so has its state
+            # The last iteration's checkpoint goes before its record: a log that says the run
+            # stopped has that state beside it, even after a kill between the two.
+            if stopping:
+                _save(trainer, new_state, run_dir, writer)
                 saved = record["iteration"]
             if writer:
                 runlog.append(run_dir / METRICS, record)
