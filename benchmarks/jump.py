@@ -41,7 +41,7 @@ from agents.pose import pose_features
 from agents.commands.cli import run_errors
 from agents.discovery import pictures
 from agents.tasks import jump, registry, takeoff_state
-from jaxsim import allocator, batch_last, kinematics, render, simulation, xla_options
+from jaxsim import allocator, batch_last, render, simulation, xla_options
 from jaxsim.atomic import write_text_atomic
 from spd import machine_info, reference_data
 
@@ -170,11 +170,6 @@ def explore(args):
     print(f"→ {out}")
 
 
-def _azimuth(direction) -> float:
-    """The camera azimuth (degrees, `jaxsim.render.camera`) that looks along −direction."""
-    return float(np.degrees(np.arctan2(direction[0], direction[2])))
-
-
 def report(args):
     run = Path(args.run_dir)
     data = reference_data("jump")
@@ -187,22 +182,17 @@ def report(args):
     z = summary["episode/difficulty"]
     task = {"takeoff": jnp.asarray(env.settings.x, env.q0.dtype),
             "difficulty": jnp.asarray(z, env.q0.dtype)}
-    normal = np.asarray(env.geometry(task)[0])
-    along = np.cross(normal, [0.0, 1.0, 0.0])                 # the bar's (obstacle's) length
+    _, along = pictures.bar_directions(env, task)
     world = env.world_for(task)
     times = np.arange(1, len(poses) + 1) * env.control_dt
     outcome = "cleared" if summary["episode/success"] else "failed"
     thing = "bar" if env.kind == "highjump" else "obstacle"
     render.filmstrip(env.model, poses, out / f"{args.name}_filmstrip.png", world=world,
-                     n_panels=min(10, len(poses)), times=times, azimuth=_azimuth(along),
+                     n_panels=min(10, len(poses)), times=times,
+                     azimuth=pictures.azimuth_looking_along(along),
                      title=f"{args.name}: the deterministic jump at z = {z:.2f} m ({outcome}), "
                            f"seen along the {thing}")
-    heights = [float(kinematics.center_of_mass(env.model, jnp.asarray(q))[1]) for q in poses]
-    peak = int(np.argmax(heights))
-    render.views(env.model, poses[peak], out / f"{args.name}_peak.png", world=world,
-                 azimuths=(_azimuth(along), _azimuth(normal)),
-                 labels=(f"along the {thing}", f"facing the {thing}"),
-                 title=f"peak pose (t = {times[peak]:.2f} s, centre of mass {heights[peak]:.2f} m)")
+    pictures.peak_views(env, poses, task, out / f"{args.name}_peak.png")
     pictures.peak_above_below(env, poses, task, out / f"{args.name}_above_below.png",
                               control_dt=env.control_dt)
     records = trainer_lib.read_metrics(run)
