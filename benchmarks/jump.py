@@ -193,8 +193,7 @@ def report(args):
                      title=f"{args.name}: the deterministic jump at z = {z:.2f} m ({outcome}), "
                            f"seen along the {thing}")
     pictures.peak_views(env, poses, task, out / f"{args.name}_peak.png")
-    pictures.peak_above_below(env, poses, task, out / f"{args.name}_above_below.png",
-                              control_dt=env.control_dt)
+    pictures.peak_above_below(env, poses, task, out / f"{args.name}_above_below.png")
     records = trainer_lib.read_metrics(run)
     result = {"machine": machine_info(), "run": str(run), "iterations": records[-1]["iteration"],
               "samples": records[-1]["samples"], "minutes": records[-1]["seconds"] / 60,
