@@ -16,6 +16,13 @@ Run:  python benchmarks/feature_settling.py SEARCH_DIR EVALUATION... [--bars 0.6
           [--bars 0.7 1.0]    (each evaluation's episode in the search and at those heights,
                                one filmstrip a row, seen along the bar)
 
+      python benchmarks/feature_settling.py SEARCH_DIR --from-training [--bars ...]
+          (no training, seconds: from each successful evaluation's training log, the up angle
+           its training episodes crossed with while the bar stood at each height)
+
+The last is a cheaper and noisier view than the measurements: stochastic training episodes, not
+the deterministic policy, but it needs only the log that every evaluation keeps.
+
 Killed, it is run again with the same arguments: a height already measured is not measured
 again, and a training goes on from its last checkpoint. Run it alone on the machine: it is a
 training.
@@ -29,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.discovery.jump_black_box import (DIFFICULTY_TOLERANCE, RESULT, TRAIN, evaluation_dir,
-                                             measure, read_episode, read_result)
+from agents.discovery.jump_black_box import (DIFFICULTY_TOLERANCE, EVALUATIONS, RESULT, TRAIN,
+                                             evaluation_dir, measure, read_episode, read_result)
 from bds.acquisition import rotation_geodesic
 
 
@@ -106,6 +113,37 @@ def table(search_dir: Path | None, out: Path) -> str:
     return "\n".join(lines)
 
 
+def training_table(search_dir: Path, bars, window: float = 0.05) -> str:
+    """A markdown table: per successful evaluation of the search, the median over training
+    iterations of the mean up angle of the episodes that crossed the bar plane, while the bar
+    stood within `window` below each of `bars`; then the deterministic policy's up angle as the
+    search measured it. (The trainer averages an episode metric over ended episodes, and one
+    that never crossed logs an up angle of 0, so each iteration's mean is divided by its share
+    of crossed episodes.)"""
+    from agents.rl import trainer as trainer_lib
+    lines = ["| evaluation | " + " | ".join(f"{bar:.2f} m" for bar in bars) + " | measured |",
+             "|---:|" + "---:|" * (len(bars) + 1)]
+    for directory in sorted((search_dir / EVALUATIONS).iterdir()):
+        result = read_result(directory)
+        if result is None or result["outcome"] != "success":
+            continue
+        if not (directory / TRAIN / trainer_lib.METRICS).exists():
+            lines.append(f"| {directory.name} | no training log |" + " |" * (len(bars) - 1)
+                         + f" {_degrees(result)} |")
+            continue
+        records = trainer_lib.read_metrics(directory / TRAIN)
+        bar_of = np.array([r.get(trainer_lib.DIFFICULTY, np.nan) for r in records])
+        crossed = np.array([r.get("env/episode/crossed", 0.0) for r in records])
+        up = np.array([r.get("env/episode/up_angle", 0.0) for r in records])
+        cells = []
+        for bar in bars:
+            at = (bar_of > bar - window) & (bar_of <= bar + DIFFICULTY_TOLERANCE) & (crossed > 0)
+            cells.append(f"{math.degrees(np.median(up[at] / crossed[at])):.0f}°" if at.any()
+                         else "—")
+        lines.append(f"| {directory.name} | " + " | ".join(cells) + f" | {_degrees(result)} |")
+    return "\n".join(lines)
+
+
 def filmstrips(search_dir: Path, out: Path, bars, path: Path, panels: int = 10):
     """One PNG: a row per episode (each evaluation in OUT as the search measured it, then at
     each of `bars`), `panels` poses of it seen along the bar (`jaxsim.render.filmstrip`)."""
@@ -159,7 +197,14 @@ def main(argv=None):
     parser.add_argument("--episodes", type=int, default=4)
     parser.add_argument("--table", type=Path, help="only print the table of this OUT directory")
     parser.add_argument("--filmstrips", type=Path, help="with --table: write the filmstrips here")
+    parser.add_argument("--from-training", action="store_true",
+                        help="only print the training episodes' up angle at each bar")
     args = parser.parse_args(argv)
+    if args.from_training:
+        if args.search_dir is None:
+            parser.error("--from-training needs the search directory")
+        print(training_table(args.search_dir, args.bars))
+        return
     if args.table is not None:
         if args.filmstrips is not None:
             filmstrips(args.search_dir, args.table, args.bars, args.filmstrips)
