@@ -20,12 +20,11 @@ Run:  python benchmarks/feature_settling.py SEARCH_DIR EVALUATION... [--bars 0.6
           (no training, seconds: from each successful evaluation's training log, the up angle
            its training episodes crossed with while the bar stood at each height)
 
-The last is a cheaper and noisier view than the measurements: stochastic training episodes, not
-the deterministic policy, but it needs only the log that every evaluation keeps.
-
-Killed, it is run again with the same arguments: a height already measured is not measured
-again, and a training goes on from its last checkpoint. Run it alone on the machine: it is a
-training.
+Killed, the first form is run again with the same arguments: a height already measured is not
+measured again, and a training goes on from its last checkpoint. Run it alone on the machine: it
+is a training. The last form is a cheaper and noisier view than the measurements (stochastic
+training episodes, not the deterministic policy) that needs only each evaluation's training log,
+`evaluations/NNN/train/metrics.jsonl` (which docs/discovery's carried copies of searches lack).
 """
 
 import argparse
@@ -117,9 +116,10 @@ def training_table(search_dir: Path, bars, window: float = 0.05) -> str:
     """A markdown table: per successful evaluation of the search, the median over training
     iterations of the mean up angle of the episodes that crossed the bar plane, while the bar
     stood within `window` below each of `bars`; then the deterministic policy's up angle as the
-    search measured it. (The trainer averages an episode metric over ended episodes, and one
-    that never crossed logs an up angle of 0, so each iteration's mean is divided by its share
-    of crossed episodes.)"""
+    search measured it. (The trainer averages an episode metric over the episodes that ended in
+    the iteration, one that never crossed the bar plane logging an up angle of 0, so each
+    iteration's mean is divided by its share of crossed episodes; an iteration in which none
+    ended logs null, read as NaN, and is left out.)"""
     from agents.rl import trainer as trainer_lib
     lines = ["| evaluation | " + " | ".join(f"{bar:.2f} m" for bar in bars) + " | measured |",
              "|---:|" + "---:|" * (len(bars) + 1)]
@@ -132,9 +132,9 @@ def training_table(search_dir: Path, bars, window: float = 0.05) -> str:
                          + f" {_degrees(result)} |")
             continue
         records = trainer_lib.read_metrics(directory / TRAIN)
-        bar_of = np.array([r.get(trainer_lib.DIFFICULTY, np.nan) for r in records])
-        crossed = np.array([r.get("env/episode/crossed", 0.0) for r in records])
-        up = np.array([r.get("env/episode/up_angle", 0.0) for r in records])
+        logged = lambda key: np.array([r.get(key) for r in records], dtype=float)  # null: NaN
+        bar_of = logged("env/episode/difficulty")        # the bar the ended episodes jumped
+        crossed, up = logged("env/episode/crossed"), logged("env/episode/up_angle")
         cells = []
         for bar in bars:
             at = (bar_of > bar - window) & (bar_of <= bar + DIFFICULTY_TOLERANCE) & (crossed > 0)
@@ -201,8 +201,9 @@ def main(argv=None):
                         help="only print the training episodes' up angle at each bar")
     args = parser.parse_args(argv)
     if args.from_training:
-        if args.search_dir is None:
-            parser.error("--from-training needs the search directory")
+        if args.search_dir is None or not (args.search_dir / EVALUATIONS).is_dir():
+            parser.error(f"--from-training needs a search directory with {EVALUATIONS}/; "
+                         f"got {args.search_dir}")
         print(training_table(args.search_dir, args.bars))
         return
     if args.table is not None:
