@@ -6,6 +6,8 @@ bar, the side of the body facing the ground, and from above, the side facing the
 what tells a flop (back to the bar, belly up) from a straddle or a dive (belly down). The
 gallery's `peak_above_below` draws those two with the camera straight above and straight below,
 the bar running across the picture, beside the level view along the bar that shows the height.
+Our bodies are flat-shaded shapes, which look the same from the front and the back, so each
+panel also draws the facing direction (`draw_facing`).
 """
 
 import math
@@ -53,6 +55,25 @@ def peak_views(env, poses, task, path, title=None):
                  labels=(f"along the {thing}", f"facing the {thing}"), title=title)
 
 
+def facing_direction(q) -> np.ndarray:
+    """The root's facing direction (its X axis, the chest's normal) in world axes for a pose q:
+    the direction whose angle from up is the Stage-1 feature (`agents.tasks.jump`)."""
+    return np.asarray(rotations.quat_to_matrix(jnp.asarray(q[3:7])), float)[:, 0]
+
+
+def draw_facing(ax, q, azimuth: float, elevation: float, length: float = 0.5):
+    """An arrow from the root along its facing direction, as the camera (`jaxsim.render.camera`)
+    sees it: solid where it points towards the camera (the chest is the side seen), dashed
+    where it points away (the back is seen). Returns the arrow (a matplotlib annotation)."""
+    view = render.camera(azimuth, elevation)
+    root = np.asarray(q[:3], float)
+    facing = facing_direction(q)
+    towards = float(view[2] @ facing) >= 0.0
+    return ax.annotate("", xy=view[:2] @ (root + length * facing), xytext=view[:2] @ root, zorder=10,
+                arrowprops=dict(arrowstyle="-|>", color="crimson", lw=2.0,
+                                linestyle="-" if towards else (0, (3, 2))))
+
+
 def _bar_only(env, world):
     """`world` with its bar (or obstacle) alone: the landing block would cover a view from
     below."""
@@ -90,7 +111,8 @@ def peak_above_below(env, poses, task, path, title=None, panel_size: float = 2.4
     the bar (level, over the ground), and from straight above and straight below with the bar
     running across (Fig. 3.4's look-down and look-up views; the bar alone, without the ground
     and block that would hide the body from below, framed on the body and the nearest part of
-    the bar), written as a PNG. `control_dt`: the episode's control step (default the
+    the bar), each with the facing direction drawn (`draw_facing`), written as a PNG.
+    `control_dt`: the episode's control step (default the
     environment's; the curriculum's schedule changes it with the bar)."""
     normal, along = bar_directions(env, task)
     heights = np.asarray(_centres_of_mass(env.model, jnp.asarray(poses, env.model.mass.dtype)))
@@ -107,14 +129,16 @@ def peak_above_below(env, poses, task, path, title=None, panel_size: float = 2.4
     nearest = _nearest_on_bar(bar, q[:3])
     for ax, (label, panel_world, azimuth, elevation) in zip(axes[0], panels):
         render.view_panel(ax, env.model, q, panel_world, azimuth, elevation, label=label)
+        draw_facing(ax, q, azimuth, elevation)
         if elevation:
             _also_frame(ax, (render.camera(azimuth, elevation)[:2] @ nearest)[None])
     if title is None:
-        facing_up = np.degrees(np.arccos(np.clip(float(
-            rotations.quat_to_matrix(jnp.asarray(q[3:7]))[1, 0]), -1.0, 1.0)))
+        facing_up = np.degrees(np.arccos(np.clip(facing_direction(q)[1], -1.0, 1.0)))
         title = (f"peak pose (t = {(peak + 1) * (control_dt or env.control_dt):.2f} s, "
                  f"centre of mass {height:.2f} m, facing {facing_up:.0f}° from up)")
     fig.suptitle(title, fontsize=10)
+    fig.supxlabel("red arrow: where the chest faces (dashed: away from the camera)",
+                  fontsize=8, color="crimson")
     render.save_figure(fig, path)
 
 
