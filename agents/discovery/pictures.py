@@ -63,15 +63,17 @@ def facing_direction(q) -> np.ndarray:
 
 def draw_facing(ax, q, azimuth: float, elevation: float, length: float = 0.5):
     """An arrow from the root along its facing direction, as the camera (`jaxsim.render.camera`)
-    sees it: solid where it points towards the camera (the chest is the side seen), dashed
-    where it points away (the back is seen). Returns the arrow (a matplotlib annotation)."""
+    sees it: solid, with a filled head, where it points towards the camera (the chest is the side
+    seen), dashed, with an open head, where it points away (the back is seen). Returns the
+    arrow (a matplotlib annotation)."""
     view = render.camera(azimuth, elevation)
     root = np.asarray(q[:3], float)
     facing = facing_direction(q)
     towards = float(view[2] @ facing) >= 0.0
-    return ax.annotate("", xy=view[:2] @ (root + length * facing), xytext=view[:2] @ root, zorder=10,
-                arrowprops=dict(arrowstyle="-|>", color="crimson", lw=2.0,
-                                linestyle="-" if towards else (0, (3, 2))))
+    return ax.annotate("", xy=view[:2] @ (root + length * facing), xytext=view[:2] @ root,
+                       zorder=10, arrowprops=dict(arrowstyle="-|>" if towards else "->",
+                                                  color="crimson", lw=2.0,
+                                                  linestyle="-" if towards else (0, (2, 3))))
 
 
 def _bar_only(env, world):
