@@ -1,6 +1,7 @@
-"""The peak-pose pictures' facing arrow (`agents.discovery.pictures.draw_facing`): flat-shaded
-bodies look the same from the front and the back, so the arrow is what shows a face-up crossing
-from a face-down one. Checked on poses whose facing direction is known by construction."""
+"""The peak-pose pictures' facing arrow and marker (`agents.discovery.pictures.draw_facing`):
+flat-shaded bodies look the same from the front and the back, so they are what shows a face-up
+crossing from a face-down one. Checked on poses whose facing direction is known by
+construction."""
 
 import math
 
@@ -34,18 +35,23 @@ def test_the_arrow_is_solid_only_towards_the_camera(turn, from_above, from_below
     plt = render.pyplot()
     fig, ax = plt.subplots()
     styles = {}
+    markers = {}
     for view, elevation in (("above", 90.0), ("below", -90.0)):
-        arrow = pictures.draw_facing(ax, _pose(turn), 0.0, elevation)
+        arrow, marker = pictures.draw_facing(ax, _pose(turn), 0.0, elevation)
         styles[view] = "solid" if arrow.arrow_patch.get_linestyle() == "-" else "dashed"
+        markers[view] = marker.get_marker()
     plt.close(fig)
     assert styles == {"above": from_above, "below": from_below}
+    dot_or_cross = {"solid": "o", "dashed": "x"}
+    assert markers == {"above": dot_or_cross[from_above], "below": dot_or_cross[from_below]}
 
 
 def test_seen_level_the_arrow_runs_from_the_root_along_the_facing_direction():
     plt = render.pyplot()
     fig, ax = plt.subplots()
-    arrow = pictures.draw_facing(ax, _pose(90.0), 0.0, 0.0, length=0.5)     # face up
+    arrow, marker = pictures.draw_facing(ax, _pose(90.0), 0.0, 0.0, length=0.5)     # face up
     plt.close(fig)
     view = render.camera(0.0, 0.0)
     np.testing.assert_allclose(arrow.xyann, view[:2] @ ROOT)
+    np.testing.assert_allclose(np.ravel(marker.get_xydata()), view[:2] @ ROOT)
     np.testing.assert_allclose(np.subtract(arrow.xy, arrow.xyann), [0.0, 0.5], atol=1e-9)

@@ -7,7 +7,7 @@ what tells a flop (back to the bar, belly up) from a straddle or a dive (belly d
 gallery's `peak_above_below` draws those two with the camera straight above and straight below,
 the bar running across the picture, beside the level view along the bar that shows the height.
 Our bodies are flat-shaded shapes, which look the same from the front and the back, so each
-panel also draws the facing direction (`draw_facing`).
+panel also draws the body's facing direction (`draw_facing`).
 """
 
 import math
@@ -56,24 +56,28 @@ def peak_views(env, poses, task, path, title=None):
 
 
 def facing_direction(q) -> np.ndarray:
-    """The root's facing direction (its X axis, the chest's normal) in world axes for a pose q:
-    the direction whose angle from up is the Stage-1 feature (`agents.tasks.jump`)."""
+    """The body's facing direction for a pose q: the root's (pelvis's) X axis in world axes,
+    whose angle from up is the Stage-1 feature (`agents.tasks.jump`)."""
     return np.asarray(rotations.quat_to_matrix(jnp.asarray(q[3:7])), float)[:, 0]
 
 
 def draw_facing(ax, q, azimuth: float, elevation: float, length: float = 0.5):
-    """An arrow from the root along its facing direction, as the camera (`jaxsim.render.camera`)
-    sees it: solid, with a filled head, where it points towards the camera (the chest is the side
-    seen), dashed, with an open head, where it points away (the back is seen). Returns the
-    arrow (a matplotlib annotation)."""
+    """The facing direction as the camera (`jaxsim.render.camera`) sees it: an arrow from the
+    root, solid where it points towards the camera (the front of the body is the side seen),
+    dashed where it points away (the back is seen), and at the root a dot (towards) or a cross
+    (away), which stays readable when the arrow points along the line of sight and shrinks to
+    a stub. Returns (the arrow, a matplotlib annotation; the marker, a Line2D)."""
     view = render.camera(azimuth, elevation)
     root = np.asarray(q[:3], float)
     facing = facing_direction(q)
     towards = float(view[2] @ facing) >= 0.0
-    return ax.annotate("", xy=view[:2] @ (root + length * facing), xytext=view[:2] @ root,
-                       zorder=10, arrowprops=dict(arrowstyle="-|>" if towards else "->",
-                                                  color="crimson", lw=2.0,
-                                                  linestyle="-" if towards else (0, (2, 3))))
+    arrow = ax.annotate("", xy=view[:2] @ (root + length * facing), xytext=view[:2] @ root,
+                        zorder=10, annotation_clip=False,
+                        arrowprops=dict(arrowstyle="-|>", color="crimson", lw=2.0,
+                                        linestyle="-" if towards else (0, (2, 3))))
+    (marker,) = ax.plot(*(view[:2] @ root), marker="o" if towards else "x", color="crimson",
+                        markersize=5, markeredgewidth=2, zorder=11)
+    return arrow, marker
 
 
 def _bar_only(env, world):
@@ -139,7 +143,7 @@ def peak_above_below(env, poses, task, path, title=None, panel_size: float = 2.4
         title = (f"peak pose (t = {(peak + 1) * (control_dt or env.control_dt):.2f} s, "
                  f"centre of mass {height:.2f} m, facing {facing_up:.0f}° from up)")
     fig.suptitle(title, fontsize=10)
-    fig.supxlabel("red arrow: where the chest faces (dashed: away from the camera)",
+    fig.supxlabel("red: where the body faces (solid, ●: towards the camera; dashed, ×: away)",
                   fontsize=8, color="crimson")
     render.save_figure(fig, path)
 
