@@ -118,8 +118,8 @@ def peak_above_below(env, poses, task, path, title=None, panel_size: float = 2.4
     running across (Fig. 3.4's look-down and look-up views; the bar alone, without the ground
     and block that would hide the body from below, framed on the body and the nearest part of
     the bar), each with the facing direction drawn (`draw_facing`), written as a PNG.
-    `control_dt`: the episode's control step (default the
-    environment's; the curriculum's schedule changes it with the bar)."""
+    `control_dt`: the episode's control step (default the environment's; the curriculum's
+    schedule changes it with the bar)."""
     normal, along = bar_directions(env, task)
     heights = np.asarray(_centres_of_mass(env.model, jnp.asarray(poses, env.model.mass.dtype)))
     peak = int(np.argmax(heights[:, 1]))                  # as `peak_index`
