@@ -8,6 +8,7 @@ The device count of a JAX process is fixed when its backend starts, and a proces
 distributed run, so the runs are fresh Python processes (float32, as a user runs them), which
 share a compilation cache."""
 
+import gc
 import json
 import os
 import signal
@@ -22,7 +23,7 @@ import numpy as np
 import pytest
 
 from agents.checkpoint import read_msgpack
-from agents.commands import cli
+from agents.commands import cli, launch
 from agents.rl import parallel
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -205,14 +206,20 @@ def test_ctrl_c_stops_every_process_with_a_checkpoint(cache, tmp_path):
             assert time.monotonic() < deadline, "no iteration logged in 4 minutes"
             time.sleep(0.2)
         launcher.send_signal(signal.SIGINT)
+        logged_at_signal = log.read_text().count("\n")
         try:
             output, _ = launcher.communicate(timeout=120)
         except subprocess.TimeoutExpired:
             launcher.kill()
             for pid in _running(run_dir):    # its children, in their own sessions, with it
                 os.kill(pid, signal.SIGKILL)
-            pytest.fail("the run did not stop within 2 minutes of Ctrl-C; its output:\n"
-                        + launcher.communicate()[0][-4000:])
+            output = launcher.communicate()[0]
+            launcher_lines = [line for line in output.splitlines()
+                              if line.startswith("takeoff train:")]
+            pytest.fail(f"the run did not stop within 2 minutes of Ctrl-C: {logged_at_signal} "
+                        f"iterations logged at the signal, {log.read_text().count(chr(10))} "
+                        f"at the kill; the launcher said {launcher_lines}; the output's end:\n"
+                        + output[-3000:])
     finally:
         if launcher.poll() is None:
             launcher.kill()
@@ -224,6 +231,82 @@ def test_ctrl_c_stops_every_process_with_a_checkpoint(cache, tmp_path):
                 if leaf.dtype == np.int32 and leaf.shape == ()]
     assert last in counters and last * 16 * 16 in counters      # its iterations and samples
     assert _running(run_dir) == []
+
+
+# A stand-in for a `takeoff train` child: Ctrl-C ends it as an interrupted run does (130);
+# left alone it ends by itself, as a finished run does (0).
+SLEEPER = ("import signal, sys, time\n"
+           "signal.signal(signal.SIGINT, lambda *_: sys.exit(130))\n"
+           "time.sleep({seconds})\n")
+
+
+def _sleepers(processes, seconds=30):
+    return [[sys.executable, "-c", SLEEPER.format(seconds=seconds)]] * processes
+
+
+def test_a_ctrl_c_that_lands_in_a_garbage_collector_callback_still_stops_the_run(monkeypatch):
+    """Python only prints an exception raised inside a gc callback, so a launcher that took
+    Ctrl-C as KeyboardInterrupt lost one landing there and waited for its children forever;
+    one whose handler only notes the signal passes it on."""
+    monkeypatch.setattr(launch, "child_commands", lambda args, processes, port:
+                        _sleepers(processes))
+    sent = []
+
+    def sleep_after_a_ctrl_c_in_a_gc_callback(seconds):
+        if not sent:                  # the launcher is waiting for its children: Ctrl-C now
+            def callback(phase, info):
+                if phase == "start" and not sent:
+                    sent.append(True)
+                    os.kill(os.getpid(), signal.SIGINT)
+            gc.callbacks.append(callback)
+            try:
+                gc.collect()
+            finally:
+                gc.callbacks.remove(callback)
+        time.sleep(seconds)
+
+    monkeypatch.setattr(launch, "time", types.SimpleNamespace(
+        sleep=sleep_after_a_ctrl_c_in_a_gc_callback, monotonic=time.monotonic))
+    said = []
+    started = time.monotonic()
+    status = launch.launch([], 2, echo=lambda *words, **_: said.extend(words))
+    assert sent and status == 130
+    assert time.monotonic() - started < 20          # the children did not run out their time
+    assert any("stopping all processes" in words for words in said)
+
+
+def test_a_second_ctrl_c_kills_children_that_do_not_stop(monkeypatch):
+    stubborn = ("import signal, time\n"
+                "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+                "time.sleep(30)\n")
+    children = [subprocess.Popen([sys.executable, "-c", stubborn]) for _ in range(2)]
+    time.sleep(1.0)                                 # (their handlers are in place)
+    started = time.monotonic()
+    assert launch._wait(children, [], [signal.SIGINT, signal.SIGINT], print) == 130
+    for child in children:
+        child.wait(timeout=10)
+        assert child.returncode == -signal.SIGKILL
+    assert time.monotonic() - started < 10
+
+
+def test_children_that_stop_after_a_ctrl_c_give_the_interrupted_status(monkeypatch):
+    children = [subprocess.Popen(command) for command in _sleepers(2)]
+    time.sleep(1.0)
+    failed = []
+    assert launch._wait(children, failed, [signal.SIGINT], print) == 130
+    assert [child.returncode for child in children] == [130, 130]
+
+
+def test_the_launcher_imports_no_jax(tmp_path):
+    """`takeoff train --processes N` starts no JAX backend of its own (launch.py's promise)."""
+    script = ("import sys\n"
+              "from agents.commands import cli, launch\n"
+              "launch.launch = lambda args, processes: print('jax' in sys.modules) or 0\n"
+              f"cli.main(['train', {CONFIG!r}, '--out', {str(tmp_path / 'r')!r}, "
+              "'--processes', '2'])\n")
+    done = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert done.stdout.strip() == "False", done.stdout + done.stderr
 
 
 def test_environments_that_cannot_be_split_evenly_are_refused_naming_both_numbers():

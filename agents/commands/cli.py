@@ -120,14 +120,13 @@ def run_errors():
 
 
 def _cmd_train(args):
-    from agents.commands import train_commands
-
     if (args.config is None) == (args.resume is None):
         raise SystemExit("takeoff train: give a CONFIG to start a run or --resume DIR, not both")
     cluster = _cluster(args)
     if args.processes > 1:
-        from agents.commands import launch
+        from agents.commands import launch          # (the launcher imports no JAX)
         raise SystemExit(launch.launch(_train_args(args), args.processes))
+    from agents.commands import train_commands
     from agents.rl import parallel
 
     try:

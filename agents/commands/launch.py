@@ -10,7 +10,10 @@ others' is kept, and shown when one of them is the first to fail.
 
 Stopping: a Ctrl-C or a SIGTERM reaches the launcher only (the children run in their own
 sessions); it passes the signal on to each child once, and the children stop together after
-an iteration, process 0 saving a checkpoint (`parallel.Stop`). A second one kills them. A child
+an iteration, process 0 saving a checkpoint (`parallel.Stop`). A second one kills them. The
+launcher's handler only notes a signal and its wait loop acts on it: an exception raised from a
+handler lands wherever the interpreter happens to be, and is lost where it lands inside a
+garbage-collector callback or a finaliser (Python only prints it there). A child
 that fails ends the others (they would wait for it forever), and a child whose launcher dies
 is killed by the kernel (PR_SET_PDEATHSIG, on Linux). The launcher's exit status is the first
 failing child's (130 after a Ctrl-C or SIGTERM: the children stop as interrupted), else 0.
@@ -28,6 +31,7 @@ import tempfile
 import time
 
 PR_SET_PDEATHSIG = 1
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 GRACE_SECONDS = 10.0       # how long the others may take to fail by themselves when one fails
 # A process pinned to a single core waits ~8× longer for each collective operation (3.8 ms
 # against 0.5 ms for a small all-reduce over gloo, 2 processes on the 2-core machine): its
@@ -79,14 +83,6 @@ def child_commands(train_args, processes: int, port: int) -> list:
     return [[*base, "--process-id", str(i)] for i in range(processes)]
 
 
-class _Terminated(Exception):
-    """SIGTERM reached the launcher."""
-
-
-def _raise_terminated(signum, frame):
-    raise _Terminated
-
-
 def launch(train_args, processes: int, echo=print) -> int:
     """Run `takeoff train` with `train_args` as `processes` processes of one run on this host;
     the exit status (see the module docstring)."""
@@ -95,7 +91,9 @@ def launch(train_args, processes: int, echo=print) -> int:
     pinned = "" if shares[0] is None else ", each on its own cores"
     echo(f"takeoff train: {processes} processes on this host{pinned} (coordinator "
          f"127.0.0.1:{port})", flush=True)
-    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    received = []                       # the stop signals that reached the launcher, in order
+    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum))
+                for signum in STOP_SIGNALS}
     children, logs, failed = [], [], []
     status = 1
     try:
@@ -108,19 +106,10 @@ def launch(train_args, processes: int, echo=print) -> int:
             children.append(subprocess.Popen(
                 command, stdout=log, stderr=None if log is None else subprocess.STDOUT,
                 start_new_session=True, preexec_fn=lambda c=cores: _child_setup(c)))
-        status = _wait(children, failed)
-    except (KeyboardInterrupt, _Terminated) as stop:
-        signum = signal.SIGINT if isinstance(stop, KeyboardInterrupt) else signal.SIGTERM
-        echo("\ntakeoff train: stopping all processes after their iteration, with a checkpoint "
-             "(Ctrl-C again kills them)", file=sys.stderr, flush=True)
-        _signal(children, signum)
-        status = 128 + signum
-        try:
-            status = _wait(children, failed) or status
-        except (KeyboardInterrupt, _Terminated):
-            pass                             # (the children are killed below)
+        status = _wait(children, failed, received, echo)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
         for child in children:          # whatever happened, no child outlives the launcher
             if child.poll() is None:
                 child.kill()
@@ -141,15 +130,27 @@ def _show(log, index, echo, lines=60):
     echo("\n".join(text), file=sys.stderr, flush=True)
 
 
-def _wait(children, failed) -> int:
+def _wait(children, failed, received, echo) -> int:
     """Wait for all children; the first non-zero status, else 0 (and the index of the first
     child to fail appended to `failed`). After a child fails (other than by a Ctrl-C, after
     which the others finish their checkpoint), the others get `GRACE_SECONDS` to end by
     themselves (a failure in all of them, with its message), then are killed (one waiting for
     a dead process in a collective operation would wait forever; JAX's runtime takes SIGTERM
-    as a preemption notice, so only SIGKILL ends it)."""
-    status, failed_at = 0, None
+    as a preemption notice, so only SIGKILL ends it).
+
+    `received` is the launcher's list of stop signals, appended to by its handler: the first
+    is passed on to the children, and the run's status becomes 128 + its number unless a
+    child failed otherwise; a second kills the children and ends the wait."""
+    status, failed_at, stopped_by = 0, None, None
     while True:
+        if received and stopped_by is None:
+            stopped_by = received[0]
+            echo("\ntakeoff train: stopping all processes after their iteration, with a "
+                 "checkpoint (Ctrl-C again kills them)", file=sys.stderr, flush=True)
+            _signal(children, stopped_by)
+        if len(received) > 1:
+            _signal(children, signal.SIGKILL)
+            return 128 + stopped_by
         codes = [child.poll() for child in children]
         for index, code in enumerate(codes):
             if code and not status:
@@ -157,7 +158,7 @@ def _wait(children, failed) -> int:
                 failed.append(index)
                 failed_at = time.monotonic() if code != 130 else None
         if all(code is not None for code in codes):
-            return status
+            return status or (0 if stopped_by is None else 128 + stopped_by)
         if failed_at is not None and time.monotonic() - failed_at > GRACE_SECONDS:
             _signal(children, signal.SIGKILL)
             return status
