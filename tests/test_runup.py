@@ -41,6 +41,20 @@ def test_the_task_reward_by_hand():
     low = runup.takeoff_reward("obstacle", omega, velocity, target_omega, target_velocity)
     assert float(low) == pytest.approx(np.exp(-1.0), rel=1e-12)
     assert float(runup.takeoff_reward("highjump", omega, velocity, omega, velocity)) == 1.0
+    # ours, k_y = 0.5: − 0.5 (v_y − v̄_y)² = − 0.5 · 8.7² = − 37.845 more, for either kind
+    vertical = runup.takeoff_reward("highjump", omega, velocity, target_omega, target_velocity,
+                                    k_vertical=0.5)
+    assert float(vertical) == pytest.approx(np.exp(-1 - 0.7 * 1.96 - 37.845), rel=1e-12)
+    vertical = runup.takeoff_reward("obstacle", omega, velocity, target_omega, target_velocity,
+                                    k_vertical=0.5)
+    assert float(vertical) == pytest.approx(np.exp(-1 - 37.845), rel=1e-12)
+
+
+def test_the_settings_give_the_task_reward_its_weights():
+    settings = runup.RunupSettings(k_takeoff_omega=0.2, k_takeoff_velocity=0.3,
+                                   k_takeoff_vertical=0.4)
+    assert settings.takeoff_weights == {"k_omega": 0.2, "k_velocity": 0.3, "k_vertical": 0.4}
+    assert runup.RunupSettings().takeoff_weights["k_vertical"] == 0.0     # the thesis's r_G
 
 
 def _imitation_reward(env, state):
@@ -234,3 +248,18 @@ def test_a_jump_of_another_x_or_vertical_velocity_is_refused(motion_run, data_di
         cli.main(["motion", str(other), str(other), "--out", str(root / "no"),
                   "--data-dir", str(data_dir)])
     assert "RUNUP_DIR must be a runup run" in str(caught.value)
+
+
+def test_the_jump_of_a_full_motion_can_be_put_at_another_bar(motion_run, data_dir):
+    root, runs, summary, _ = motion_run
+    assert summary["jump"]["bar"] == pytest.approx(0.5)             # its run's curriculum's
+    lower, full = motion_commands.full_motion(*runs, root / "bar", data_dir, render=False,
+                                              echo=lambda *_: None, bar=0.8)
+    assert lower["jump"]["bar"] == pytest.approx(0.8)
+    jump_env = motion_commands.load_run(runs[1], data_dir, echo=lambda *_: None).env
+    bar = jump_env.world_for(jax.tree_util.tree_map(jnp.asarray, full.jump.task))
+    assert float(bar.box_half_size[0][1]) == pytest.approx(0.4)     # a wall from 0 to 0.8 m
+    with pytest.raises(SystemExit, match=r"--bar must be a height > 0 in m; got -1"):
+        cli.main(["motion", *map(str, runs), "--out", str(root / "no"), "--bar", "-1",
+                  "--data-dir", str(data_dir)])
+    assert not (root / "no").exists()

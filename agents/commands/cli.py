@@ -244,7 +244,7 @@ def _cmd_motion(args):
 
     try:
         motion_commands.full_motion(args.runup_dir, args.jump_dir, args.out, args.data_dir,
-                                    args.fps, args.seed)
+                                    args.fps, args.seed, bar=args.bar)
     except run_errors() as error:
         raise SystemExit(f"takeoff motion: {error}")
 
@@ -415,6 +415,8 @@ def build_parser():
     p.add_argument("--fps", type=float, help="frames per second of the GIF and BVH (default: "
                                              "the run-up's control rate)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the rollout (default 0)")
+    p.add_argument("--bar", type=float, metavar="Z", help="the jump's bar height (obstacle: "
+                                                          "width) in m (default: its run's)")
     p.add_argument("--data-dir", help=DATA_DIR_HELP)
     p.set_defaults(run=_cmd_motion)
     p = sub.add_parser("gallery", help="one HTML page (and a PNG contact sheet) of a strategy "

@@ -2,7 +2,8 @@
 motion (thesis §3.6.1), rendered and exported.
 
 `full_motion(runup_dir, jump_dir, out_dir)` loads the two training runs (a `runup` run and a
-`highjump`/`obstacle` run of the same x; the jump at its run's difficulty and control rate),
+`highjump`/`obstacle` run of the same x; the jump at its run's difficulty, or at the bar height
+(obstacle width) `bar`, and at its run's control rate),
 runs `agents.tasks.full_motion` once with their deterministic policies, and writes to out_dir:
 
   motion.gif       the whole motion with the jump's bar (or obstacle) and landing block
@@ -113,7 +114,7 @@ def takeoff_error(runup_env, physics, x) -> dict:
         omega, velocity = takeoff_state.facing_velocities(q, qd)
         omega_goal, velocity_goal = takeoff_state.facing_velocities(q_goal, qd_goal)
         reward = takeoff_reward(runup_env.kind, omega, velocity, omega_goal, velocity_goal,
-                                s.k_takeoff_omega, s.k_takeoff_velocity)
+                                **s.takeoff_weights)
         _, angles = runup_env.errors(q, qd, q_goal, qd_goal)       # joint 0: the root
         return omega, omega_goal, velocity, velocity_goal, reward, angles, q[:3] - q_goal[:3]
 
@@ -124,6 +125,7 @@ def takeoff_error(runup_env, physics, x) -> dict:
             "omega_l1_error": float(np.sum(np.abs(omega - omega_goal))),
             "velocity": _floats(velocity), "velocity_target": _floats(velocity_goal),
             "v_z_error": float(velocity[2] - velocity_goal[2]),
+            "v_y_error": float(velocity[1] - velocity_goal[1]),
             "takeoff_reward": float(reward),
             "joint_angle_error_degrees": float(np.degrees(np.mean(angles[1:]))),
             "root_horizontal_offset_m": float(np.hypot(offset[0], offset[2])),
@@ -196,14 +198,19 @@ def export_bvh(model, clip, fps: float, path) -> dict:
 
 
 def full_motion(runup_dir, jump_dir, out_dir, data_dir=None, fps: float | None = None,
-                seed: int = 0, render: bool = True, echo=print):
-    """`takeoff motion`: load both runs, run the full motion, write the GIF, filmstrip, BVH and
-    summary in out_dir (only the BVH and summary with `render` false). Returns the summary and
-    the `FullMotion`."""
+                seed: int = 0, render: bool = True, echo=print, bar: float | None = None):
+    """`takeoff motion`: load both runs, run the full motion (the jump at `bar`, else at its
+    run's difficulty), write the GIF, filmstrip, BVH and summary in out_dir (only the BVH and
+    summary with `render` false). Returns the summary and the `FullMotion`."""
     out_dir = Path(out_dir)
+    if bar is not None and not (np.isfinite(bar) and bar > 0):
+        raise config_io.ConfigError(f"--bar must be a height > 0 in m; got {bar}")
     runup = load_run(runup_dir, data_dir, echo)
     jump = load_run(jump_dir, data_dir, echo)
     check_runs(runup, jump)
+    if bar is not None:
+        difficulty = jnp.asarray(bar, jump.params["difficulty"].dtype)
+        jump = dataclasses.replace(jump, params={**jump.params, "difficulty": difficulty})
     fps = float(runup.env.settings.control_hz if fps is None else fps)
     if not (np.isfinite(fps) and fps > 0):
         raise config_io.ConfigError(f"--fps must be a number > 0; got {fps}")

@@ -60,6 +60,12 @@ class Handover:
     shift_from: jax.Array    # (3,)
     shift_to: jax.Array      # (3,)
 
+    def pose_to_jump(self, q):
+        """A pose of the run-up's world in the jump task's frame."""
+        position = self.turn @ (q[:3] - self.shift_from) + self.shift_to
+        orientation = rotations.quat_multiply(rotations.matrix_to_quat(self.turn), q[3:7])
+        return q.at[:3].set(position).at[3:7].set(orientation)
+
     def pose_to_runup(self, q):
         """A pose of the jump task's frame in the run-up's world."""
         position = self.turn.T @ (q[:3] - self.shift_to) + self.shift_from
@@ -127,8 +133,8 @@ def check_pair(runup_env, jump_env, runup_params, jump_params):
     jump_vertical = float(jump_params["vertical_velocity"])
     if abs(jump_vertical - clip_vertical) > 1e-6:
         raise ValueError(f"the jump was trained from a take-off vertical velocity of "
-                         f"{jump_vertical:.3f} m/s, the run-up arrives with the clip's "
-                         f"{clip_vertical:.3f} m/s (its task reward has no v_y term)")
+                         f"{jump_vertical:.3f} m/s, the run-up's take-off state has the clip's "
+                         f"{clip_vertical:.3f} m/s")
 
 
 def handover(runup_env, jump_env, physics, fresh):
@@ -145,8 +151,7 @@ def handover(runup_env, jump_env, physics, fresh):
     turn = jump_env.heading @ heading.T
     flat = jnp.asarray(_FLAT, q.dtype)
     move = Handover(turn, q[:3] * flat, jump_env.q0[:3] * flat)
-    moved = q.at[:3].set(turn @ (q[:3] - move.shift_from) + move.shift_to)
-    moved = moved.at[3:7].set(rotations.quat_multiply(rotations.matrix_to_quat(turn), q[3:7]))
+    moved = move.pose_to_jump(q)
     ground = len(contact.contact_layout(runup_env.model, runup_env.world))
     stretch = fresh.physics.contact_stretch.at[:ground].set(physics.contact_stretch @ turn.T)
     touching = fresh.physics.touching.at[:, 0].set(physics.touching[:, 0])
