@@ -2,6 +2,7 @@
 the desired take-off state is the jump's, the episode grid ends at the take-off time, and in the
 full motion of two (untrained) policies the jump policy takes over at the take-off time."""
 
+import copy
 import json
 
 import jax
@@ -48,13 +49,20 @@ def test_the_task_reward_by_hand():
     vertical = runup.takeoff_reward("obstacle", omega, velocity, target_omega, target_velocity,
                                     k_vertical=0.5)
     assert float(vertical) == pytest.approx(np.exp(-1 - 37.845), rel=1e-12)
+    # ours, k_q = 0.3: − 0.3 mean((1 − 0)², (−2 − 1)²) = − 0.3 · 5 = − 1.5 more
+    joints = runup.takeoff_reward("obstacle", omega, velocity, target_omega, target_velocity,
+                                  k_joints=0.3, joint_velocity=np.array([1.0, -2.0]),
+                                  target_joint_velocity=np.array([0.0, 1.0]))
+    assert float(joints) == pytest.approx(np.exp(-1 - 1.5), rel=1e-12)
 
 
 def test_the_settings_give_the_task_reward_its_weights():
     settings = runup.RunupSettings(k_takeoff_omega=0.2, k_takeoff_velocity=0.3,
-                                   k_takeoff_vertical=0.4)
-    assert settings.takeoff_weights == {"k_omega": 0.2, "k_velocity": 0.3, "k_vertical": 0.4}
-    assert runup.RunupSettings().takeoff_weights["k_vertical"] == 0.0     # the thesis's r_G
+                                   k_takeoff_vertical=0.4, k_takeoff_joints=0.5)
+    assert settings.takeoff_weights == {"k_omega": 0.2, "k_velocity": 0.3, "k_vertical": 0.4,
+                                        "k_joints": 0.5}
+    thesis = runup.RunupSettings().takeoff_weights           # eq. 3.13 alone by default
+    assert thesis["k_vertical"] == thesis["k_joints"] == 0.0
 
 
 def _imitation_reward(env, state):
@@ -74,6 +82,16 @@ def test_the_episode_s_targets_are_x_s_and_the_take_off_step_pays_r_g(env):
     constructed = state.physics.replace(q=q, qd=qd)
     by_hand = np.exp(-(1.0 + 0.5 + 1.0) / 3 - 0.7 * 0.5 ** 2)
     assert float(env.task_reward(constructed, state.task)) == pytest.approx(by_hand, rel=1e-9)
+    # Our joint-velocity term compares the joints (not the root's 6) with the desired state's.
+    _, qd_goal = env.desired_state(jnp.asarray(x, jnp.float64))
+    np.testing.assert_allclose(state.task["target_joint_velocity"], qd_goal[6:], atol=1e-12)
+    joints = runup.RunupSettings(takeoff=x, k_takeoff_joints=0.5)
+    with_joints = copy.copy(env)                            # the same env, other weights
+    with_joints.settings = joints
+    mean_square = np.mean((np.asarray(qd)[6:] - np.asarray(qd_goal)[6:]) ** 2)
+    assert mean_square > 0.1
+    assert float(with_joints.task_reward(constructed, state.task)) == pytest.approx(
+        by_hand * np.exp(-0.5 * mean_square), rel=1e-9)
     # The step before the take-off pays the imitation reward only ...
     step = jax.jit(env.step)
     state = step(params, state, jnp.zeros(env.action_size))

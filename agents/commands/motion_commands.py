@@ -33,7 +33,7 @@ from agents.rl import trainer as trainer_lib
 from agents.tasks import full_motion as fm
 from agents.tasks import jump as jump_lib
 from agents.tasks import takeoff_state
-from agents.tasks.runup import takeoff_reward
+from agents.tasks.runup import joint_velocities, takeoff_reward
 from jaxsim import kinematics, motion, xla_options
 from jaxsim.atomic import check_writable, write_text_atomic
 
@@ -103,9 +103,10 @@ def run_full_motion(runup: LoadedRun, jump: LoadedRun, seed: int = 0) -> fm.Full
 
 def takeoff_error(runup_env, physics, x) -> dict:
     """The state at the switch against the desired take-off state of x: the root's angular
-    and linear velocity in the facing frame minus the desired ones, r_G (eq. 3.13/3.14), the
-    mean angle error of the joints, and the root's offset from the take-off pose (horizontal
-    distance and height)."""
+    and linear velocity in the facing frame minus the desired ones, r_G (eq. 3.13/3.14, with
+    the run's own terms), the mean angle error of the joints and the rms error of their
+    velocities, and the root's offset from the take-off pose (horizontal distance and
+    height)."""
     s = runup_env.settings
 
     @jax.jit
@@ -113,14 +114,17 @@ def takeoff_error(runup_env, physics, x) -> dict:
         q_goal, qd_goal = runup_env.desired_state(x)
         omega, velocity = takeoff_state.facing_velocities(q, qd)
         omega_goal, velocity_goal = takeoff_state.facing_velocities(q_goal, qd_goal)
+        joints, joints_goal = (joint_velocities(runup_env.model, v) for v in (qd, qd_goal))
         reward = takeoff_reward(runup_env.kind, omega, velocity, omega_goal, velocity_goal,
-                                **s.takeoff_weights)
+                                **s.takeoff_weights, joint_velocity=joints,
+                                target_joint_velocity=joints_goal)
         _, angles = runup_env.errors(q, qd, q_goal, qd_goal)       # joint 0: the root
-        return omega, omega_goal, velocity, velocity_goal, reward, angles, q[:3] - q_goal[:3]
+        return (omega, omega_goal, velocity, velocity_goal, reward, angles, q[:3] - q_goal[:3],
+                jnp.sqrt(jnp.mean((joints - joints_goal) ** 2)))
 
     q = jnp.asarray(physics.q)
-    omega, omega_goal, velocity, velocity_goal, reward, angles, offset = jax.device_get(
-        compare(q, jnp.asarray(physics.qd), jnp.asarray(x, q.dtype)))
+    omega, omega_goal, velocity, velocity_goal, reward, angles, offset, joints_rms = \
+        jax.device_get(compare(q, jnp.asarray(physics.qd), jnp.asarray(x, q.dtype)))
     return {"omega": _floats(omega), "omega_target": _floats(omega_goal),
             "omega_l1_error": float(np.sum(np.abs(omega - omega_goal))),
             "velocity": _floats(velocity), "velocity_target": _floats(velocity_goal),
@@ -128,6 +132,7 @@ def takeoff_error(runup_env, physics, x) -> dict:
             "v_y_error": float(velocity[1] - velocity_goal[1]),
             "takeoff_reward": float(reward),
             "joint_angle_error_degrees": float(np.degrees(np.mean(angles[1:]))),
+            "joint_velocity_rms_error": float(joints_rms),
             "root_horizontal_offset_m": float(np.hypot(offset[0], offset[2])),
             "root_height_offset_m": float(offset[1])}
 

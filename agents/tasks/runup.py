@@ -32,12 +32,19 @@ the same features of the desired take-off state built from x:
     obstacle  (eq. 3.14)   r_G = exp(−k_ω ‖ω − ω̄‖₁)
 
 with k_ω = 1/3 and k_v = 0.7 (`k_takeoff_omega`, `k_takeoff_velocity`; the thesis's values as we
-read its typeset equations). Ours, off by default: `k_takeoff_vertical` k_y adds − k_y (v_y − v̄_y)²
-to either exponent, the root's vertical velocity, which eqs. 3.13–3.14 leave to the imitation
-reward. A run-up that arrives late in its last stance is still sinking at the take-off time (the
-plain-PD search's 000: −0.93 m/s where the clip rises at 1.10 m/s), and a jump policy trained
-from the clip's rising take-off state then jumps short (docs/discovery/README.md, "A full motion
-at 1.0 m"). For the high jump ω̄ = (ω_x, −3, ω_z) and v̄_z come from x = (α, ω_x,
+read its typeset equations). Ours, off by default, two more terms in either exponent:
+
+    − k_y (v_y − v̄_y)²                 `k_takeoff_vertical`: the root's vertical velocity
+    − k_q mean_j (q̇_j − q̇̄_j)²          `k_takeoff_joints`: the joints' velocities (rad/s),
+                                       over every degree of freedom but the root's
+
+which eqs. 3.13–3.14 leave to the imitation reward. A jump policy trained from the clip's
+take-off state needs them: for the plain-PD search's 000 (docs/discovery/README.md, "A full
+motion at 1.0 m") a run-up that arrived late in its last stance was still sinking at the
+take-off time (−0.93 m/s where the clip rises at 1.10), and one that arrived rising, with the
+root's velocities within 0.06 m/s and 0.2 rad/s, still had its joints moving 2.6 rad/s (rms) off
+the clip's, and that alone made the 1.0 m jump hit the bar (it clears with the clip's joint
+velocities put in). For the high jump ω̄ = (ω_x, −3, ω_z) and v̄_z come from x = (α, ω_x,
 ω_z, v_z); the approach angle α is not in the reward, since the jump turns the bar about the
 take-off point (`agents.tasks.jump.jump_geometry`). For the obstacle jump ω̄ = x. The targets are
 read off the desired take-off state (`desired_state`) itself, the state `JumpEnv.reset` starts
@@ -85,6 +92,7 @@ class RunupSettings(ImitationSettings):
     k_takeoff_omega: float = K_OMEGA
     k_takeoff_velocity: float = K_VELOCITY
     k_takeoff_vertical: float = 0.0            # ours: the vertical velocity in r_G (0: off)
+    k_takeoff_joints: float = 0.0              # ours: the joints' velocities in r_G (0: off)
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -97,7 +105,7 @@ class RunupSettings(ImitationSettings):
         if not self.controller:
             raise ValueError("controller must name a file")
         check_positive(self, ("w_takeoff", "k_takeoff_omega", "k_takeoff_velocity",
-                              "k_takeoff_vertical"), allow_zero=True)
+                              "k_takeoff_vertical", "k_takeoff_joints"), allow_zero=True)
         if self.takeoff:
             takeoff_state.check_x(self.kind, self.takeoff, "takeoff")
 
@@ -109,20 +117,31 @@ class RunupSettings(ImitationSettings):
     def takeoff_weights(self) -> dict:
         """The weights of `takeoff_reward`, by keyword."""
         return {"k_omega": self.k_takeoff_omega, "k_velocity": self.k_takeoff_velocity,
-                "k_vertical": self.k_takeoff_vertical}
+                "k_vertical": self.k_takeoff_vertical, "k_joints": self.k_takeoff_joints}
 
 
 def takeoff_reward(kind: str, omega, velocity, target_omega, target_velocity,
-                   k_omega=K_OMEGA, k_velocity=K_VELOCITY, k_vertical=0.0):
+                   k_omega=K_OMEGA, k_velocity=K_VELOCITY, k_vertical=0.0, k_joints=0.0,
+                   joint_velocity=None, target_joint_velocity=None):
     """The run-up's task reward r_G of eq. 3.13 (high jump: exp(−k_ω ‖ω − ω̄‖₁ − k_v (v_z −
-    v̄_z)²)) or eq. 3.14 (obstacle: exp(−k_ω ‖ω − ω̄‖₁)), with − k_y (v_y − v̄_y)² added to the
-    exponent for `k_vertical` k_y > 0 (ours); ω, v and their targets are the root's angular and
-    linear velocity in the facing frame (3,)."""
+    v̄_z)²)) or eq. 3.14 (obstacle: exp(−k_ω ‖ω − ω̄‖₁)), with our terms − k_y (v_y − v̄_y)² and
+    − k_q mean (q̇_j − q̇̄_j)² added to the exponent (`k_vertical`, `k_joints`; see the module
+    docstring); ω, v and their targets are the root's angular and linear velocity in the facing
+    frame (3,), q̇_j `joint_velocity` the velocities of every degree of freedom but the root's
+    (without them, no joint term)."""
     exponent = -k_omega * jnp.sum(jnp.abs(omega - target_omega), axis=-1)
     if kind == "highjump":
         exponent = exponent - k_velocity * (velocity[..., 2] - target_velocity[..., 2]) ** 2
     exponent = exponent - k_vertical * (velocity[..., 1] - target_velocity[..., 1]) ** 2
+    if joint_velocity is not None:
+        exponent = exponent - k_joints * jnp.mean(
+            (joint_velocity - target_joint_velocity) ** 2, axis=-1)
     return jnp.exp(exponent)
+
+
+def joint_velocities(model, qd):
+    """The velocities of every degree of freedom but the root's."""
+    return qd[..., int(model.topology.dof_offsets[1]):]
 
 
 class RunupEnv(ImitationEnv):
@@ -189,23 +208,23 @@ class RunupEnv(ImitationEnv):
         dtype = self.clip.poses.dtype
         start = jnp.asarray(self.takeoff.time, dtype) - steps.astype(dtype) * self.control_dt
         state = self.start_at(start, key)
-        target_omega, target_velocity = takeoff_state.facing_velocities(
-            *self.desired_state(params["takeoff"]))
+        q_goal, qd_goal = self.desired_state(params["takeoff"])
+        target_omega, target_velocity = takeoff_state.facing_velocities(q_goal, qd_goal)
         task = {"start": start, "to_takeoff": steps, "target_omega": target_omega,
-                "target_velocity": target_velocity}
+                "target_velocity": target_velocity,
+                "target_joint_velocity": joint_velocities(self.model, qd_goal)}
         zero = jnp.zeros((), dtype)
         return state.replace(task=task, metrics={**state.metrics,
                                                  **self._takeoff_metrics(zero, zero)})
 
-    def features(self, physics):
-        """ω and v of the root in the facing frame: what r_G compares."""
-        return takeoff_state.facing_velocities(physics.q, physics.qd)
-
     def task_reward(self, physics, task):
-        """r_G (eq. 3.13 or 3.14) of a state against the targets of the episode's x."""
-        omega, velocity = self.features(physics)
+        """r_G (eq. 3.13 or 3.14, and our terms) of a state against the targets of the
+        episode's x."""
+        omega, velocity = takeoff_state.facing_velocities(physics.q, physics.qd)
         return takeoff_reward(self.kind, omega, velocity, task["target_omega"],
-                              task["target_velocity"], **self.settings.takeoff_weights)
+                              task["target_velocity"], **self.settings.takeoff_weights,
+                              joint_velocity=joint_velocities(self.model, physics.qd),
+                              target_joint_velocity=task["target_joint_velocity"])
 
     def step(self, params, state, action):
         """One imitation step (`ImitationEnv.imitate`); at the take-off time the task reward
