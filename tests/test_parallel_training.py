@@ -233,27 +233,38 @@ def test_ctrl_c_stops_every_process_with_a_checkpoint(cache, tmp_path):
     assert _running(run_dir) == []
 
 
-# A stand-in for a `takeoff train` child: Ctrl-C ends it as an interrupted run does (130);
-# left alone it ends by itself, as a finished run does (0).
-SLEEPER = ("import signal, sys, time\n"
-           "signal.signal(signal.SIGINT, lambda *_: sys.exit(130))\n"
-           "time.sleep({seconds})\n")
+def _stand_in(ready, handler="lambda *_: sys.exit(130)", seconds=30):
+    """A stand-in for a `takeoff train` child: it sets `handler` for SIGINT and SIGTERM (by
+    default it ends as an interrupted run does, 130), says so with a file in `ready`, and
+    ends by itself after `seconds`, as a finished run does (0)."""
+    code = ("import os, pathlib, signal, sys, time\n"
+            f"signal.signal(signal.SIGINT, {handler})\n"
+            f"signal.signal(signal.SIGTERM, {handler})\n"
+            f"pathlib.Path({str(ready)!r}, str(os.getpid())).touch()\n"
+            f"time.sleep({seconds})\n")
+    return [sys.executable, "-c", code]
 
 
-def _sleepers(processes, seconds=30):
-    return [[sys.executable, "-c", SLEEPER.format(seconds=seconds)]] * processes
+def _wait_until_ready(ready, count):
+    deadline = time.monotonic() + 120
+    while len(list(Path(ready).iterdir())) < count:
+        assert time.monotonic() < deadline, "the stand-in children did not start in 2 minutes"
+        time.sleep(0.05)
 
 
-def test_a_ctrl_c_that_lands_in_a_garbage_collector_callback_still_stops_the_run(monkeypatch):
+def test_a_ctrl_c_that_lands_in_a_garbage_collector_callback_still_stops_the_run(
+        monkeypatch, tmp_path):
     """Python only prints an exception raised inside a gc callback, so a launcher that took
     Ctrl-C as KeyboardInterrupt lost one landing there and waited for its children forever;
     one whose handler only notes the signal passes it on."""
     monkeypatch.setattr(launch, "child_commands", lambda args, processes, port:
-                        _sleepers(processes))
+                        [_stand_in(tmp_path)] * processes)
     sent = []
 
     def sleep_after_a_ctrl_c_in_a_gc_callback(seconds):
         if not sent:                  # the launcher is waiting for its children: Ctrl-C now
+            _wait_until_ready(tmp_path, 2)
+
             def callback(phase, info):
                 if phase == "start" and not sent:
                     sent.append(True)
@@ -271,16 +282,13 @@ def test_a_ctrl_c_that_lands_in_a_garbage_collector_callback_still_stops_the_run
     started = time.monotonic()
     status = launch.launch([], 2, echo=lambda *words, **_: said.extend(words))
     assert sent and status == 130
-    assert time.monotonic() - started < 20          # the children did not run out their time
+    assert time.monotonic() - started < 25          # the children did not run out their time
     assert any("stopping all processes" in words for words in said)
 
 
-def test_a_second_ctrl_c_kills_children_that_do_not_stop(monkeypatch):
-    stubborn = ("import signal, time\n"
-                "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
-                "time.sleep(30)\n")
-    children = [subprocess.Popen([sys.executable, "-c", stubborn]) for _ in range(2)]
-    time.sleep(1.0)                                 # (their handlers are in place)
+def test_a_second_ctrl_c_kills_children_that_do_not_stop(tmp_path):
+    children = [subprocess.Popen(_stand_in(tmp_path, "signal.SIG_IGN")) for _ in range(2)]
+    _wait_until_ready(tmp_path, 2)
     started = time.monotonic()
     assert launch._wait(children, [], [signal.SIGINT, signal.SIGINT], print) == 130
     for child in children:
@@ -289,12 +297,21 @@ def test_a_second_ctrl_c_kills_children_that_do_not_stop(monkeypatch):
     assert time.monotonic() - started < 10
 
 
-def test_children_that_stop_after_a_ctrl_c_give_the_interrupted_status(monkeypatch):
-    children = [subprocess.Popen(command) for command in _sleepers(2)]
-    time.sleep(1.0)
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_children_that_stop_as_interrupted_give_the_run_their_status(tmp_path, stop):
+    """The run's status is the children's 130 (an interrupted run) for either stop signal, not
+    the launcher's own 128 + its number."""
+    children = [subprocess.Popen(_stand_in(tmp_path)) for _ in range(2)]
+    _wait_until_ready(tmp_path, 2)
     failed = []
-    assert launch._wait(children, failed, [signal.SIGINT], print) == 130
-    assert [child.returncode for child in children] == [130, 130]
+    assert launch._wait(children, failed, [stop], print) == 130
+    assert [child.returncode for child in children] == [130, 130] and failed == [0]
+
+
+def test_a_child_ended_by_the_signal_itself_gives_128_plus_its_number(tmp_path):
+    children = [subprocess.Popen(_stand_in(tmp_path, "signal.SIG_DFL")) for _ in range(2)]
+    _wait_until_ready(tmp_path, 2)
+    assert launch._wait(children, [], [signal.SIGTERM], print) == 128 + signal.SIGTERM
 
 
 def test_the_launcher_imports_no_jax(tmp_path):

@@ -16,7 +16,9 @@ handler lands wherever the interpreter happens to be, and is lost where it lands
 garbage-collector callback or a finaliser (Python only prints it there). A child
 that fails ends the others (they would wait for it forever), and a child whose launcher dies
 is killed by the kernel (PR_SET_PDEATHSIG, on Linux). The launcher's exit status is the first
-failing child's (130 after a Ctrl-C or SIGTERM: the children stop as interrupted), else 0.
+failing child's (a child ended by a signal counts as 128 + its number; after a Ctrl-C or
+SIGTERM the children stop as interrupted, 130), else 0; after a second stop signal, 128 + the
+first's number unless a child had failed.
 
 This module imports no JAX: the launcher starts no backend of its own.
 """
@@ -92,8 +94,8 @@ def launch(train_args, processes: int, echo=print) -> int:
     echo(f"takeoff train: {processes} processes on this host{pinned} (coordinator "
          f"127.0.0.1:{port})", flush=True)
     received = []                       # the stop signals that reached the launcher, in order
-    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum))
-                for signum in STOP_SIGNALS}
+    previous = {stop: signal.signal(stop, lambda signum, frame: received.append(signum))
+                for stop in STOP_SIGNALS}
     children, logs, failed = [], [], []
     status = 1
     try:
@@ -108,17 +110,17 @@ def launch(train_args, processes: int, echo=print) -> int:
                 start_new_session=True, preexec_fn=lambda c=cores: _child_setup(c)))
         status = _wait(children, failed, received, echo)
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
         for child in children:          # whatever happened, no child outlives the launcher
             if child.poll() is None:
                 child.kill()
                 child.wait()
-        if failed and failed[0] > 0 and status not in (0, 130):
+        if failed and failed[0] > 0 and not received:
             _show(logs[failed[0]], failed[0], echo)
         for log in logs:
             if log is not None:
                 log.close()
+        for stop, handler in previous.items():     # last: a Ctrl-C until here is only noted
+            signal.signal(stop, handler)
     return status
 
 
@@ -139,8 +141,9 @@ def _wait(children, failed, received, echo) -> int:
     as a preemption notice, so only SIGKILL ends it).
 
     `received` is the launcher's list of stop signals, appended to by its handler: the first
-    is passed on to the children, and the run's status becomes 128 + its number unless a
-    child failed otherwise; a second kills the children and ends the wait."""
+    is passed on to the children (who then end as interrupted, 130, or, where it came before
+    their handlers were set, are ended by it: 128 + its number); a second kills the children
+    and ends the wait with 128 + the first's number unless a child had failed."""
     status, failed_at, stopped_by = 0, None, None
     while True:
         if received and stopped_by is None:
@@ -150,8 +153,8 @@ def _wait(children, failed, received, echo) -> int:
             _signal(children, stopped_by)
         if len(received) > 1:
             _signal(children, signal.SIGKILL)
-            return 128 + stopped_by
-        codes = [child.poll() for child in children]
+            return status or 128 + stopped_by
+        codes = [_status(child.poll()) for child in children]
         for index, code in enumerate(codes):
             if code and not status:
                 status = code
@@ -163,6 +166,12 @@ def _wait(children, failed, received, echo) -> int:
             _signal(children, signal.SIGKILL)
             return status
         time.sleep(0.1)
+
+
+def _status(code):
+    """A child's exit status as a shell gives it: 128 + the number of the signal that ended it
+    (Popen's negative codes), its exit code otherwise (None while it runs)."""
+    return 128 - code if code is not None and code < 0 else code
 
 
 def _signal(children, signum):
