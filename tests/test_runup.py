@@ -54,6 +54,9 @@ def test_the_task_reward_by_hand():
                                   k_joints=0.3, joint_velocity=np.array([1.0, -2.0]),
                                   target_joint_velocity=np.array([0.0, 1.0]))
     assert float(joints) == pytest.approx(np.exp(-1 - 1.5), rel=1e-12)
+    with pytest.raises(ValueError, match="k_joints > 0 needs joint_velocity"):
+        runup.takeoff_reward("obstacle", omega, velocity, target_omega, target_velocity,
+                             k_joints=0.3)
 
 
 def test_the_settings_give_the_task_reward_its_weights():
@@ -82,16 +85,19 @@ def test_the_episode_s_targets_are_x_s_and_the_take_off_step_pays_r_g(env):
     constructed = state.physics.replace(q=q, qd=qd)
     by_hand = np.exp(-(1.0 + 0.5 + 1.0) / 3 - 0.7 * 0.5 ** 2)
     assert float(env.task_reward(constructed, state.task)) == pytest.approx(by_hand, rel=1e-9)
-    # Our joint-velocity term compares the joints (not the root's 6) with the desired state's.
-    _, qd_goal = env.desired_state(jnp.asarray(x, jnp.float64))
-    np.testing.assert_allclose(state.task["target_joint_velocity"], qd_goal[6:], atol=1e-12)
-    joints = runup.RunupSettings(takeoff=x, k_takeoff_joints=0.5)
+    # Our joint-velocity term compares the joints (not the root's 6) with the desired state's;
+    # without it the episode's task is an older run's (whose checkpoints then load).
+    assert "target_joint_velocity" not in state.task
     with_joints = copy.copy(env)                            # the same env, other weights
-    with_joints.settings = joints
+    with_joints.settings = runup.RunupSettings(takeoff=x, k_takeoff_joints=0.5)
+    _, with_joints_state = _begin(with_joints, x, 2)
+    _, qd_goal = env.desired_state(jnp.asarray(x, jnp.float64))
+    np.testing.assert_allclose(with_joints_state.task["target_joint_velocity"], qd_goal[6:],
+                               atol=1e-12)
     mean_square = np.mean((np.asarray(qd)[6:] - np.asarray(qd_goal)[6:]) ** 2)
     assert mean_square > 0.1
-    assert float(with_joints.task_reward(constructed, state.task)) == pytest.approx(
-        by_hand * np.exp(-0.5 * mean_square), rel=1e-9)
+    assert float(with_joints.task_reward(constructed, with_joints_state.task)) == \
+        pytest.approx(by_hand * np.exp(-0.5 * mean_square), rel=1e-9)
     # The step before the take-off pays the imitation reward only ...
     step = jax.jit(env.step)
     state = step(params, state, jnp.zeros(env.action_size))
@@ -271,13 +277,14 @@ def test_a_jump_of_another_x_or_vertical_velocity_is_refused(motion_run, data_di
 def test_the_jump_of_a_full_motion_can_be_put_at_another_bar(motion_run, data_dir):
     root, runs, summary, _ = motion_run
     assert summary["jump"]["bar"] == pytest.approx(0.5)             # its run's curriculum's
-    lower, full = motion_commands.full_motion(*runs, root / "bar", data_dir, render=False,
-                                              echo=lambda *_: None, bar=0.8)
-    assert lower["jump"]["bar"] == pytest.approx(0.8)
+    higher, full = motion_commands.full_motion(*runs, root / "bar", data_dir, render=False,
+                                               echo=lambda *_: None, bar=0.8)
+    assert higher["jump"]["bar"] == pytest.approx(0.8)
     jump_env = motion_commands.load_run(runs[1], data_dir, echo=lambda *_: None).env
     bar = jump_env.world_for(jax.tree_util.tree_map(jnp.asarray, full.jump.task))
     assert float(bar.box_half_size[0][1]) == pytest.approx(0.4)     # a wall from 0 to 0.8 m
-    with pytest.raises(SystemExit, match=r"--bar must be a height > 0 in m; got -1"):
+    with pytest.raises(SystemExit, match=r"--bar must be a bar height \(obstacle width\) > 0 "
+                                         r"in m; got -1"):
         cli.main(["motion", *map(str, runs), "--out", str(root / "no"), "--bar", "-1",
                   "--data-dir", str(data_dir)])
     assert not (root / "no").exists()

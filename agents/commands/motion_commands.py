@@ -14,7 +14,8 @@ runs `agents.tasks.full_motion` once with their deterministic policies, and writ
   summary.json     the switch (its step and time, and the clip's take-off time), the run-up's
                    tracking error and falls, the state at the switch against the desired
                    take-off state of x (root velocities in the facing frame, r_G of eq. 3.13 or
-                   3.14, joint angles), and how the jump ended
+                   3.14 with the run-up's own terms, joint angles and their velocities), and how
+                   the jump ended (at its bar)
 
 Frames are at the run-up's control rate unless `fps` says otherwise (see `full_motion.resample`).
 """
@@ -33,7 +34,7 @@ from agents.rl import trainer as trainer_lib
 from agents.tasks import full_motion as fm
 from agents.tasks import jump as jump_lib
 from agents.tasks import takeoff_state
-from agents.tasks.runup import joint_velocities, takeoff_reward
+from agents.tasks.runup import joint_velocities, joint_velocity_error, takeoff_reward
 from jaxsim import kinematics, motion, xla_options
 from jaxsim.atomic import check_writable, write_text_atomic
 
@@ -120,7 +121,7 @@ def takeoff_error(runup_env, physics, x) -> dict:
                                 target_joint_velocity=joints_goal)
         _, angles = runup_env.errors(q, qd, q_goal, qd_goal)       # joint 0: the root
         return (omega, omega_goal, velocity, velocity_goal, reward, angles, q[:3] - q_goal[:3],
-                jnp.sqrt(jnp.mean((joints - joints_goal) ** 2)))
+                jnp.sqrt(joint_velocity_error(joints, joints_goal)))
 
     q = jnp.asarray(physics.q)
     omega, omega_goal, velocity, velocity_goal, reward, angles, offset, joints_rms = \
@@ -209,7 +210,8 @@ def full_motion(runup_dir, jump_dir, out_dir, data_dir=None, fps: float | None =
     summary with `render` false). Returns the summary and the `FullMotion`."""
     out_dir = Path(out_dir)
     if bar is not None and not (np.isfinite(bar) and bar > 0):
-        raise config_io.ConfigError(f"--bar must be a height > 0 in m; got {bar}")
+        raise config_io.ConfigError(f"--bar must be a bar height (obstacle width) > 0 in m; "
+                                    f"got {bar}")
     runup = load_run(runup_dir, data_dir, echo)
     jump = load_run(jump_dir, data_dir, echo)
     check_runs(runup, jump)

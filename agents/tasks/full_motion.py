@@ -164,7 +164,7 @@ def handover(runup_env, jump_env, physics, fresh):
 def make_full_motion(runup_env, jump_env, runup_apply, jump_apply):
     """motion(runup_params, jump_params, runup_policy, jump_policy, key) -> FullMotion (see the
     module docstring): `*_params` are the environments' task parameters (one set each, the
-    jump's at its run's difficulty), `*_policy` a `Policy` each, `*_apply` the networks'
+    jump's at the bar it is to clear), `*_policy` a `Policy` each, `*_apply` the networks'
     apply functions (`agents.rl.ppo.make_ppo(...).policy_apply`); actions are the policies'
     means."""
     K = runup_env.runup_steps

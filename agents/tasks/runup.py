@@ -125,23 +125,31 @@ def takeoff_reward(kind: str, omega, velocity, target_omega, target_velocity,
                    joint_velocity=None, target_joint_velocity=None):
     """The run-up's task reward r_G of eq. 3.13 (high jump: exp(−k_ω ‖ω − ω̄‖₁ − k_v (v_z −
     v̄_z)²)) or eq. 3.14 (obstacle: exp(−k_ω ‖ω − ω̄‖₁)), with our terms − k_y (v_y − v̄_y)² and
-    − k_q mean (q̇_j − q̇̄_j)² added to the exponent (`k_vertical`, `k_joints`; see the module
-    docstring); ω, v and their targets are the root's angular and linear velocity in the facing
-    frame (3,), q̇_j `joint_velocity` the velocities of every degree of freedom but the root's
-    (without them, no joint term)."""
+    − k_q mean (q̇_j − q̇̄_j)² added to the exponent where their weights (`k_vertical`,
+    `k_joints`; see the module docstring) are not 0; ω, v and their targets are the root's
+    angular and linear velocity in the facing frame (3,), q̇_j `joint_velocity` the velocities
+    of every degree of freedom but the root's (needed for k_joints > 0)."""
     exponent = -k_omega * jnp.sum(jnp.abs(omega - target_omega), axis=-1)
     if kind == "highjump":
         exponent = exponent - k_velocity * (velocity[..., 2] - target_velocity[..., 2]) ** 2
-    exponent = exponent - k_vertical * (velocity[..., 1] - target_velocity[..., 1]) ** 2
-    if joint_velocity is not None:
-        exponent = exponent - k_joints * jnp.mean(
-            (joint_velocity - target_joint_velocity) ** 2, axis=-1)
+    if k_vertical:
+        exponent = exponent - k_vertical * (velocity[..., 1] - target_velocity[..., 1]) ** 2
+    if k_joints:
+        if joint_velocity is None:
+            raise ValueError("k_joints > 0 needs joint_velocity and target_joint_velocity")
+        exponent = exponent - k_joints * joint_velocity_error(joint_velocity,
+                                                              target_joint_velocity)
     return jnp.exp(exponent)
 
 
 def joint_velocities(model, qd):
     """The velocities of every degree of freedom but the root's."""
     return qd[..., int(model.topology.dof_offsets[1]):]
+
+
+def joint_velocity_error(joint_velocity, target_joint_velocity):
+    """mean_j (q̇_j − q̇̄_j)², (rad/s)²: our joint term of r_G."""
+    return jnp.mean((joint_velocity - target_joint_velocity) ** 2, axis=-1)
 
 
 class RunupEnv(ImitationEnv):
@@ -211,8 +219,9 @@ class RunupEnv(ImitationEnv):
         q_goal, qd_goal = self.desired_state(params["takeoff"])
         target_omega, target_velocity = takeoff_state.facing_velocities(q_goal, qd_goal)
         task = {"start": start, "to_takeoff": steps, "target_omega": target_omega,
-                "target_velocity": target_velocity,
-                "target_joint_velocity": joint_velocities(self.model, qd_goal)}
+                "target_velocity": target_velocity}
+        if self.settings.k_takeoff_joints:     # (only then: older runs' checkpoints still load)
+            task["target_joint_velocity"] = joint_velocities(self.model, qd_goal)
         zero = jnp.zeros((), dtype)
         return state.replace(task=task, metrics={**state.metrics,
                                                  **self._takeoff_metrics(zero, zero)})
@@ -221,10 +230,12 @@ class RunupEnv(ImitationEnv):
         """r_G (eq. 3.13 or 3.14, and our terms) of a state against the targets of the
         episode's x."""
         omega, velocity = takeoff_state.facing_velocities(physics.q, physics.qd)
+        joints = ({"joint_velocity": joint_velocities(self.model, physics.qd),
+                   "target_joint_velocity": task["target_joint_velocity"]}
+                  if "target_joint_velocity" in task else {})
         return takeoff_reward(self.kind, omega, velocity, task["target_omega"],
                               task["target_velocity"], **self.settings.takeoff_weights,
-                              joint_velocity=joint_velocities(self.model, physics.qd),
-                              target_joint_velocity=task["target_joint_velocity"])
+                              **joints)
 
     def step(self, params, state, action):
         """One imitation step (`ImitationEnv.imitate`); at the take-off time the task reward
@@ -251,4 +262,4 @@ class RunupEnv(ImitationEnv):
 registry.register(registry.Task(
     "runup", RunupSettings, RunupEnv,
     # the character sets the networks' sizes, the phase the observation's
-    fixed_on_resume=("character", "phase_in_observation")))
+    fixed_on_resume=("character", "phase_in_observation", "k_takeoff_joints")))
