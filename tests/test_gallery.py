@@ -248,6 +248,29 @@ def test_an_evaluation_whose_training_run_is_gone_is_drawn_with_another_ones_con
         assert f"gallery/{name}" in card and (out / "gallery" / name).stat().st_size > 0
 
 
+def test_a_search_without_any_training_run_is_drawn_with_its_own_training_config(
+        search_dir, data_dir, tmp_path):
+    """As docs/discovery keeps its searches: results and episodes, no training runs at all."""
+    carried = tmp_path / "carried"
+    shutil.copytree(search_dir, carried)
+    for run in list(carried.rglob(jump_black_box.TRAIN)):
+        shutil.rmtree(run)
+    out = tmp_path / "out"
+    page = gallery.write_gallery(carried, out, data_dir, echo=lambda *_: None).read_text()
+    assert "no pictures" not in _card(page, "eval-001")
+    assert (out / "gallery" / "001_peak.png").stat().st_size > 0
+    assert (out / "gallery" / "stage2_000.gif").stat().st_size > 0
+    # Its training config gone too: a note on each card, and the page still written.
+    config = json.loads((carried / "config.json").read_text())
+    config["jump"]["train"] = str(tmp_path / "no_such.toml")
+    (carried / "config.json").write_text(json.dumps(config))
+    said = []
+    page = gallery.write_gallery(carried, tmp_path / "bare", data_dir, redraw=True,
+                                 echo=said.append).read_text()
+    assert "no pictures" in _card(page, "eval-001")
+    assert any("no training config to draw" in line and "no_such.toml" in line for line in said)
+
+
 def test_a_directory_that_is_not_a_search_is_named(tmp_path, capsys):
     with pytest.raises(gallery.GalleryError, match="config.json and no evaluations.jsonl"):
         gallery.write_gallery(tmp_path)

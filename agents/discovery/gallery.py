@@ -381,15 +381,16 @@ def _task(evaluations, config) -> str | None:
 
 # ---------------------------------------------------------------------------------- pictures
 
-def drawing_env(train_dir, data_dir=None):
-    """The environment that draws an evaluation whose training run is `train_dir` (None when
-    its task has no world to draw): built from its config with plain PD actions and without
-    its take-off x, since neither the model nor the world depends on the action space (a P-VAE
-    run need not be at hand) and the world is drawn for each episode's own x. Evaluations of
-    one search share it."""
+def drawing_env(train_dir, data_dir=None, config=None):
+    """The environment that draws an evaluation whose training run is `train_dir` (or whose
+    training config is `config`; None when its task has no world to draw): built from that
+    config with plain PD actions and without its take-off x, since neither the model nor the
+    world depends on the action space (a P-VAE run need not be at hand) and the world is drawn
+    for each episode's own x. Evaluations of one search share it."""
     from agents.commands import train_commands
     from agents.datadir import data_dir_from
-    config = train_commands.load_run_config(train_dir)
+    if config is None:
+        config = train_commands.load_run_config(train_dir)
     task = config.task
     if hasattr(task, "actions"):
         task = dataclasses.replace(task, actions="pd", takeoff=())
@@ -408,14 +409,23 @@ def _fresh(picture: Path, source: Path) -> bool:
     return picture.exists() and picture.stat().st_mtime >= source.stat().st_mtime
 
 
-def _any_training_run(sections) -> Path | None:
-    """The training run of the first of a search's evaluations that still has one (None when
-    none has): it draws the evaluations whose own run is gone (a search carried between
-    machines keeps its episodes and results, not its training runs). One search's evaluations
-    train from one config and differ only in their take-off x, which `drawing_env` leaves out."""
+def stand_in_config(search_config: dict, sections):
+    """The training config that draws the evaluations whose own training run is gone (a search
+    carried between machines, as docs/discovery's, keeps its episodes and results, not its
+    training runs): that of the first evaluation that still has one, else the search's own
+    `[jump]` training config (its file as it is now, with the search's overrides); None for
+    another black box. One search's evaluations train from one config and differ only in their
+    take-off x, which `drawing_env` leaves out."""
+    from agents.commands import train_commands
     runs = (evaluation.directory / jump_black_box.TRAIN for section in sections
             for evaluation in section.evaluations if evaluation.directory is not None)
-    return next((run for run in runs if _has_config(run)), None)
+    run = next((run for run in runs if _has_config(run)), None)
+    if run is not None:
+        return train_commands.load_run_config(run)
+    jump = search_config.get("jump")
+    if search_config.get("black_box") != "jump" or not isinstance(jump, dict):
+        return None
+    return train_commands.load_config(jump["train"], jump.get("set", []))
 
 
 def _has_config(run: Path) -> bool:
@@ -423,10 +433,11 @@ def _has_config(run: Path) -> bool:
 
 
 def draw(evaluation: Evaluation, images: Path, data_dir=None, echo=print, redraw=False,
-         stand_in: Path | None = None):
+         stand_in=None):
     """Draw (or keep, when newer than its episode, unless `redraw`) an evaluation's peak views
     and GIF in `images`; set their links, or a note saying why there are none. `stand_in`, a
-    training run of the same search (`_any_training_run`), draws it when its own run is gone."""
+    training config of the same search (`stand_in_config`), draws it when its own run is
+    gone."""
     from agents.discovery import pictures
     from agents.commands.cli import run_errors
     from agents.datadir import DataDirError
@@ -441,9 +452,8 @@ def draw(evaluation: Evaluation, images: Path, data_dir=None, echo=print, redraw
     if redraw or not (_fresh(peak, episode) and _fresh(gif, episode)):
         try:
             run = evaluation.directory / jump_black_box.TRAIN
-            if stand_in is not None and not _has_config(run):
-                run = stand_in
-            env = drawing_env(run, data_dir)
+            config = stand_in if stand_in is not None and not _has_config(run) else None
+            env = drawing_env(run, data_dir, config)
         except DataDirError:
             raise                      # no pictures at all: the user names the data directory
         except run_errors() as error:
@@ -811,7 +821,11 @@ def write_gallery(search_dir, out_dir=None, data_dir=None, echo=print, redraw=Fa
     images = out_dir / IMAGES
     check_writable(images, what="the gallery")
     images.mkdir(parents=True, exist_ok=True)
-    stand_in = _any_training_run(sections)
+    try:
+        stand_in = stand_in_config(config, sections)
+    except (OSError, ValueError) as error:      # (a ConfigError is a ValueError)
+        echo(f"  no training config to draw evaluations without a training run: {error}")
+        stand_in = None
     for section in sections:
         for evaluation in section.evaluations:
             draw(evaluation, images, data_dir, echo, redraw, stand_in)
