@@ -39,10 +39,10 @@ read its typeset equations). Ours, off by default, two more terms in either expo
                                        over every degree of freedom but the root's
 
 which eqs. 3.13–3.14 leave to the imitation reward. A jump policy trained from the clip's
-take-off state needs them: for the plain-PD search's 000 (docs/discovery/README.md, "A full
-motion at 1.0 m") a run-up that arrived late in its last stance was still sinking at the
-take-off time (−0.93 m/s where the clip rises at 1.10), and one that arrived rising, with the
-root's velocities within 0.06 m/s and 0.2 rad/s, still had its joints moving 2.6 rad/s (rms) off
+take-off state can need them: for the plain-PD search's 000 (docs/discovery/README.md, "A full
+motion at 1.0 m") a run-up whose last stance began late was still sinking at the take-off
+time (−0.93 m/s where the clip rises at 1.10), and one that arrived rising, with the root's
+velocities within 0.07 m/s and 0.18 rad/s, still had its joints moving 2.6 rad/s (rms) off
 the clip's, and that alone made the 1.0 m jump hit the bar (it clears with the clip's joint
 velocities put in). For the high jump ω̄ = (ω_x, −3, ω_z) and v̄_z come from x = (α, ω_x,
 ω_z, v_z); the approach angle α is not in the reward, since the jump turns the bar about the
