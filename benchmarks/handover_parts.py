@@ -11,7 +11,8 @@ deterministic episode (at its run's bar, `--bar` for another) from:
     the joint velocities (qd beyond the root's 6), the root's orientation, the root's velocities.
 
 Each episode starts with fresh contacts (`simulation.init_state`), where the full motion carries
-the run-up's ground contact springs over; the hand-over row says whether that matters.
+the run-up's ground contact springs over: the hand-over row against the full motion's own
+summary.json says how much that matters.
 
 Run:  python benchmarks/handover_parts.py RUNUP_DIR JUMP_DIR [--bar Z] [--data-dir ../shared/data]
 (about a minute on two cores, most of it compiling).

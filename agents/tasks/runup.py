@@ -261,5 +261,6 @@ class RunupEnv(ImitationEnv):
 
 registry.register(registry.Task(
     "runup", RunupSettings, RunupEnv,
-    # the character sets the networks' sizes, the phase the observation's
+    # the character sets the networks' sizes, the phase the observation's, whether
+    # k_takeoff_joints is 0 the episode state's (its joints' targets)
     fixed_on_resume=("character", "phase_in_observation", "k_takeoff_joints")))
