@@ -39,9 +39,9 @@ def swapped_states(q_x, qd_x, q_h, qd_h):
              "root orientation": ("q", slice(3, ROOT_Q)),
              "root velocities": ("qd", slice(0, ROOT_QD))}
     states = {"take-off state of x": (q_x, qd_x), "hand-over state": (q_h, qd_h)}
-    for base, (q, qd), (q_other, qd_other) in (("take-off state of x", (q_x, qd_x), (q_h, qd_h)),
-                                               ("hand-over state", (q_h, qd_h), (q_x, qd_x))):
-        other = "hand-over" if base.startswith("take-off") else "take-off state's"
+    for base, other, (q, qd), (q_other, qd_other) in (
+            ("take-off state of x", "hand-over", (q_x, qd_x), (q_h, qd_h)),
+            ("hand-over state", "take-off state's", (q_h, qd_h), (q_x, qd_x))):
         for name, (which, where) in parts.items():
             new_q, new_qd = q.copy(), qd.copy()
             if which == "q":
