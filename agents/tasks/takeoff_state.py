@@ -41,12 +41,13 @@ character's left along its running direction, crossed sideways (the Fosbury flop
 
 Tables 3.3 and 3.4 of the thesis give the take-off states of the strategies found; their rows in
 x are `HIGHJUMP_ROWS` and `OBSTACLE_ROWS`. The thesis does not state its search box; round values
-that several rows share read as its faces. The search bounds (`HIGHJUMP_BOUNDS`,
-`OBSTACLE_BOUNDS`) contain every row: Table 3.4's rows sit on ±3.00 rad/s, Table 3.3's on
-v_z = −2.40 and −0.50 m/s, α = 2.09 (2π/3) and ω_x = −3.00. `HIGHJUMP_BOUNDS` is the wider of two
-readings of Table 3.3: its rows also sit on ω_x = 1.00 (three of them, none above) and
-ω_z = ±1.00 (none beyond), which read as the box ω_x ∈ [−3, 1], ω_z ∈ [−1, 1], 2/9 of ours
-in volume (a search's `[box]` sets it; docs/discovery/README.md, "A search in the narrower box").
+that rows sit on read as its faces. The search bounds (`HIGHJUMP_BOUNDS`, `OBSTACLE_BOUNDS`)
+contain every row: Table 3.4's side kick sits on 3.00 rad/s in two components, Table 3.3's rows
+on v_z = −2.40 and −0.50 m/s, α = 2.09 (2π/3) and ω_x = −3.00. `HIGHJUMP_BOUNDS` is the wider of
+two readings of Table 3.3: its rows also sit on ω_x = 1.00 (three of them, none above) and
+ω_z = ±1.00 (one each, none beyond), which read as the box ω_x ∈ [−3, 1], ω_z ∈ [−1, 1], 2/9 of
+ours in volume (a search's `[box]` sets it; docs/discovery/README.md, "A search in the narrower
+box").
 """
 
 import dataclasses
