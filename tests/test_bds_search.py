@@ -490,6 +490,27 @@ def test_takeoff_search_config_errors_name_the_key(tmp_path, capsys, text, messa
     assert str(config) in str(error.value)
 
 
+def test_a_jump_search_s_box_replaces_the_take_off_bounds_and_must_have_their_dimension():
+    """The narrower box of docs/discovery/README.md ("A search in the narrower box"), given on
+    the command line as there; without it the search box is the task's take-off bounds."""
+    from agents import config as config_io
+    from agents.commands.strategy_search import SearchConfig
+    from agents.tasks import takeoff_state
+    config_path = CONFIGS / "highjump_bds.toml"
+    default = config_io.load(config_path, SearchConfig, [])
+    for bound, expected in zip(default.bounds(), takeoff_state.HIGHJUMP_BOUNDS):
+        np.testing.assert_array_equal(bound, expected)
+    narrower = config_io.load(config_path, SearchConfig, [
+        "box.lower=[-0.5235987755982988, -3.0, -1.0, -2.4]",
+        "box.upper=[2.0943951023931953, 1.0, 1.0, -0.5]"])
+    lower, upper = narrower.bounds()
+    np.testing.assert_array_equal(lower, [-np.pi / 6, -3.0, -1.0, -2.4])
+    np.testing.assert_array_equal(upper, [2 * np.pi / 3, 1.0, 1.0, -0.5])
+    with pytest.raises(config_io.ConfigError,
+                       match=r"\[box\] has 3 dimensions but the highjump take-off state x has 4"):
+        config_io.load(config_path, SearchConfig, ["box.lower=[0, 0, 0]", "box.upper=[1, 1, 1]"])
+
+
 RANDOM_SEARCH = """
 black_box = "landscape"
 [search]
