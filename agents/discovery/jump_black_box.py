@@ -209,7 +209,7 @@ def measure(directory: Path, run_dir: Path, episodes: int, data_dir=None, **fiel
             f"episodes at {height:.2f} m after {result['samples']:,} training samples "
             f"({result['minutes']:.0f} min{', given up' if fields.get('gave_up') else ''}); "
             f"in its last training iteration "
-            f"{100 * (result['training_success'] or 0):.0f}% of the episodes succeeded"))
+            f"{100 * (result['training_success'] or 0):.1f}% of the episodes succeeded"))
     _keep_episode(directory, measured, height)
     write_text_atomic(directory / RESULT, json.dumps(result, indent=2) + "\n")
     return result
