@@ -44,9 +44,9 @@ motion at 1.0 m") a run-up whose last stance began late was still sinking at the
 time (−0.93 m/s where the clip rises at 1.10), and one that arrived rising, with the root's
 velocities within 0.07 m/s and 0.18 rad/s, still had its joints moving 2.6 rad/s (rms) off
 the clip's, and that alone made the 1.0 m jump hit the bar (it clears with the clip's joint
-velocities put in); with the joints' term alone the root sank again. For the high jump ω̄ = (ω_x, −3, ω_z) and v̄_z come from x = (α, ω_x,
-ω_z, v_z); the approach angle α is not in the reward, since the jump turns the bar about the
-take-off point (`agents.tasks.jump.jump_geometry`). For the obstacle jump ω̄ = x. The targets are
+velocities put in); with the joints' term alone the root sank again. For the high jump
+ω̄ = (ω_x, −3, ω_z) and v̄_z come from x = (α, ω_x, ω_z, v_z); the approach angle α is not in
+the reward, since the jump turns the bar about the take-off point (`agents.tasks.jump.jump_geometry`). For the obstacle jump ω̄ = x. The targets are
 read off the desired take-off state (`desired_state`) itself, the state `JumpEnv.reset` starts
 from for the same x, so there is one definition of what x means.
 
