@@ -46,9 +46,10 @@ velocities within 0.07 m/s and 0.18 rad/s, still had its joints moving 2.6 rad/s
 the clip's, and that alone made the 1.0 m jump hit the bar (it clears with the clip's joint
 velocities put in); with the joints' term alone the root sank again. For the high jump
 ω̄ = (ω_x, −3, ω_z) and v̄_z come from x = (α, ω_x, ω_z, v_z); the approach angle α is not in
-the reward, since the jump turns the bar about the take-off point (`agents.tasks.jump.jump_geometry`). For the obstacle jump ω̄ = x. The targets are
-read off the desired take-off state (`desired_state`) itself, the state `JumpEnv.reset` starts
-from for the same x, so there is one definition of what x means.
+the reward, since the jump turns the bar about the take-off point
+(`agents.tasks.jump.jump_geometry`). For the obstacle jump ω̄ = x. The targets are read off the
+desired take-off state (`desired_state`) itself, the state `JumpEnv.reset` starts from for the
+same x, so there is one definition of what x means.
 
 How the thesis weighs the two rewards is not given. Here every step pays the imitation reward
 (≤ 1) and the take-off step also `w_takeoff` r_G (default 10: with γ = 0.95 the imitation
