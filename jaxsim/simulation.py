@@ -1,8 +1,10 @@
 """The simulation step and multi-step simulation (docs/design.md, "Simulation step").
 
 One step: collisions → contact forces → joint-limit torques → SPD solve (thesis eq. 2.7, by the
-chosen method) → torque limits (clip, and re-solve with ABA where they bind) → semi-implicit Euler
-(q̇ ← q̇ + Δt q̈, then q advanced with the new velocity, quaternions on the manifold).
+chosen method; the joint-limit dampers implicit in it) → torque limits (where they bind, the
+motors past them held at them and the rest solved again under SPD: `limits.within_torque_limits`)
+→ semi-implicit Euler (q̇ ← q̇ + Δt q̈, then q advanced with the new velocity, quaternions on
+the manifold).
 
 All functions act on one character; batch with `jax.vmap`, or faster with `simulate_batch`
 (which computes with the batch innermost, `jaxsim.batch_last`).
@@ -17,7 +19,7 @@ import numpy as np
 from jaxsim import batch_last as batch_last_lib
 from jaxsim import contact, kinematics, limits, xla_options
 from jaxsim.batch_last import vmap as batch_last_vmap
-from jaxsim.dynamics import aba, solve_spd
+from jaxsim.dynamics import solve_applied, solve_spd
 from jaxsim.model import Model, State, check_layout
 from jaxsim.world import World
 
@@ -147,13 +149,22 @@ def step(model: Model, world: World, state: State, target, dt, method: str = "ma
         rot_w, pos_w, v_body = kinematics.link_states(model, q, qd)
         f_ext, stretch, touching = contact.contact_forces(model, world, rot_w, pos_w, v_body,
                                                           stretch, dt)
-    extra = limits.joint_limit_torques(model, world, q, qd) if world.joint_limits else None
-    qdd, tau = solve_spd(model, q, qd, target, dt, method, f_ext, world.gravity, extra,
-                         target_velocity)
+    spring, damper = (limits.joint_limit_forces(model, world, q, qd) if world.joint_limits
+                      else (None, None))
+    qdd, tau = solve_spd(model, q, qd, target, dt, method, f_ext, world.gravity, spring,
+                         target_velocity, damper)
     if world.torque_limits:
-        clipped, bound = limits.clip_torques(model, tau)
-        applied = clipped if extra is None else clipped + extra
-        qdd = jax.lax.cond(bound, lambda: aba(model, q, qd, applied, f_ext, world.gravity),
+        springs = jnp.zeros_like(qd) if spring is None else spring
+
+        def spd(gains, motors):
+            return solve_spd(gains, q, qd, target, dt, method, f_ext, world.gravity,
+                             motors + springs, target_velocity, damper)
+
+        def applied(motors):
+            return solve_applied(model, q, qd, motors + springs, dt, f_ext, world.gravity,
+                                 damper)
+        qdd = jax.lax.cond(jnp.any(jnp.abs(tau) > model.torque_limit),
+                           lambda: limits.within_torque_limits(model, tau, spd, applied),
                            lambda: qdd)
     qd_next = qd + dt * qdd
     return State(kinematics.integrate(model, q, qd_next, dt), qd_next, stretch, touching)

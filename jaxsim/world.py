@@ -42,12 +42,13 @@ class World:
                                             one per object (ground, then the boxes in order)
       tangent_stiffness, tangent_damping    the stick spring that holds a contact in place until
                                             its force exceeds μ·f_n (then it slides)
-    Joint limits: limit_stiffness [N·m/rad], limit_damping [N·m·s/rad] of the penalty torques.
+    Joint limits: limit_stiffness [N·m/rad], limit_damping [N·m·s/rad] of the penalty torques
+    (the damper is solved implicitly, `jaxsim.limits`).
 
-    Contact and limit forces are explicit, so they bound the time step: roughly Δt² k / m < 1 and
-    Δt c / m < 1 for the effective mass m at a contact point. The defaults suit the characters at
-    600 Hz; a free light body with corner contacts (a 1 kg box of 20×10×40 cm has 0.16 kg at a
-    corner) needs a softer contact or a smaller Δt.
+    Contact forces and the limit spring are explicit, so they bound the time step: roughly
+    Δt² k / m < 1 and Δt c / m < 1 for the effective mass m at a contact point. The defaults
+    suit the characters at 600 Hz; a free light body with corner contacts (a 1 kg box of
+    20×10×40 cm has 0.16 kg at a corner) needs a softer contact or a smaller Δt.
     """
 
     gravity: jax.Array

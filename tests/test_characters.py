@@ -191,8 +191,10 @@ def test_snake_far_from_the_origin_feels_no_joint_limit_on_its_root():
     pose, so a snake 5 m from the origin must not be pulled back towards it."""
     model = characters.snake(3, dtype=jnp.float64)
     q = rest_pose(model).at[0].set(5.0)
-    tau = limits.joint_limit_torques(model, make_world(dtype=jnp.float64), q, jnp.zeros(model.nv))
-    np.testing.assert_array_equal(tau, np.zeros(model.nv))
+    spring, damper = limits.joint_limit_forces(model, make_world(dtype=jnp.float64), q,
+                                             jnp.zeros(model.nv))
+    np.testing.assert_array_equal(spring, np.zeros(model.nv))
+    np.testing.assert_array_equal(damper, np.zeros(model.nv))
     assert np.all(np.isinf(np.asarray(model.q_lower[:6])))
     assert np.all(np.isinf(np.asarray(model.torque_limit[:6])))
     np.testing.assert_array_equal(model.q_upper[6:], np.ones(model.nv - 6))

@@ -13,6 +13,8 @@ Solvers, selected by name:
     maba    the Modified Articulated-Body Algorithm                    O(n)
     pd      explicit PD torques τ = −K_p (q − q̄) − K_d q̇, then ABA    O(n), not stable-PD
 Each returns (q̈, τ) with τ the joint torques actually applied (eq. 2.17: τ = Q − K_d Δt q̈).
+Passive dampers beside the motors (joint limits') act implicitly in every solver, −d (q̇ + Δt q̈):
+d Δt joins K_d Δt on the diagonal, so they are stable at any d.
 """
 
 import jax.numpy as jnp
@@ -62,32 +64,47 @@ def spd_force(model: Model, q, qd, target, dt, target_velocity=None):
             - model.kd * _velocity_error(qd, target_velocity))
 
 
+def solve_applied(model: Model, q, qd, tau, dt, f_ext=None, gravity=None, passive_damping=None):
+    """Accelerations under the joint torques `tau` (nv) applied as given, plus passive dampers
+    −d (q̇ + Δt q̈) with d = `passive_damping` (nv, N·m·s/rad; none by default), solved
+    implicitly: (M + d Δt) q̈ = τ − d q̇ − C, by the ABA of MABA in O(n)."""
+    if passive_damping is None:
+        return aba(model, q, qd, tau, f_ext, gravity)
+    return articulated_body_solve(model, q, qd, tau - passive_damping * qd,
+                                  passive_damping * dt, f_ext, gravity)
+
+
 def solve_spd(model: Model, q, qd, target, dt, method="maba", f_ext=None, gravity=None,
-              extra_torque=None, target_velocity=None):
+              extra_torque=None, target_velocity=None, passive_damping=None):
     """Accelerations and motor torques of SPD control towards `target` (a pose, nq), eq. 2.7.
 
     `f_ext` (n_links, 6): spatial forces on the links in link coordinates; `gravity`: 3-vector;
-    `extra_torque` (nv): joint torques applied as given (joint-limit penalties), which are not
-    part of the returned motor torques τ = Q − K_d Δt q̈ (eq. 2.17); `target_velocity` (nv): q̄̇.
-    Arrays of the wrong length raise ValueError.
+    `extra_torque` (nv): joint torques applied as given (joint-limit springs);
+    `passive_damping` (nv): coefficients d of dampers applied implicitly, −d (q̇ + Δt q̈)
+    (joint-limit dampers); neither is part of the returned motor torques τ = Q − K_d Δt q̈
+    (eq. 2.17); `target_velocity` (nv): q̄̇. Arrays of the wrong length raise ValueError.
     """
     for name, value, layout in (("q", q, "nq"), ("qd", qd, "nv"), ("target", target, "nq"),
                                 ("extra_torque", extra_torque, "nv"),
-                                ("target_velocity", target_velocity, "nv")):
+                                ("target_velocity", target_velocity, "nv"),
+                                ("passive_damping", passive_damping, "nv")):
         if value is not None:
             check_layout(model, name, value, layout)
     extra = jnp.zeros_like(qd) if extra_torque is None else extra_torque
+    passive = jnp.zeros_like(qd) if passive_damping is None else passive_damping
     if method == "pd":
         tau = (-model.kp * pose_error(model, q, target)
                - model.kd * _velocity_error(qd, target_velocity))
-        return aba(model, q, qd, tau + extra, f_ext, gravity), tau
+        return solve_applied(model, q, qd, tau + extra, dt, f_ext, gravity, passive), tau
     force = spd_force(model, q, qd, target, dt, target_velocity)
     damping = model.kd * dt
+    applied = force + extra - passive * qd
     if method == "maba":
-        qdd = articulated_body_solve(model, q, qd, force + extra, damping, f_ext, gravity)
+        qdd = articulated_body_solve(model, q, qd, applied, damping + passive * dt, f_ext,
+                                     gravity)
     elif method in ("dense", "sparse"):
-        h = mass_matrix(model, q) + jnp.diag(damping)
-        rhs = force + extra - bias_torques(model, q, qd, f_ext, gravity)
+        h = mass_matrix(model, q) + jnp.diag(damping + passive * dt)
+        rhs = applied - bias_torques(model, q, qd, f_ext, gravity)
         if method == "dense":
             qdd = jsl.cho_solve(jsl.cho_factor(h, lower=True), rhs)
         else:
