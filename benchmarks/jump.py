@@ -12,7 +12,8 @@
         how often random open-loop plain-PD targets (the take-off pose plus Gaussian noise,
         one draw per control step at 10 Hz) clear the curriculum's first difficulty from each
         row of Table 3.3/3.4, as printed and with ω_z negated: whether a sparse-reward
-        training from that take-off state has any first success to learn from
+        training from that take-off state has any first success to learn from, and how many
+        of those exploratory episodes the simulation blew up in
     python benchmarks/jump.py report RUN_DIR --name highjump_fosbury [--out docs]
         the figures of a training run into --out (default docs/): its curriculum curve
         (`takeoff plot`), the deterministic jump as a filmstrip with bar and mat, the peak pose
@@ -127,7 +128,9 @@ def explore(args):
                                                 control_hz=10.0)
     env = jump.JumpEnv(settings, reference_data("jump"))
     hold = pose_features.target_to_exp(env.model, pose_features.pd_target(env.model, env.q0))
-    names = ("success", *jump.FAILURES)
+    # One outcome per episode, the first listed of those that ended it: a blow-up first, for
+    # what a blown-up step touched is not physics.
+    names = ("success", "blew_up", *(f for f in jump.FAILURES if f != "blew_up"))
 
     def episode(x, actions):
         """The outcome (index into `names`, or −1: still running) of one open-loop episode."""
@@ -163,7 +166,8 @@ def explore(args):
             results.append({"row": name, "omega_z_negated": negated, "x": x.tolist(), **shares})
             print(f"{name:>28}{' (ω_z negated)' if negated else '':>15}  x {np.round(x, 2)}  "
                   f"success {int(round(shares['success'] * args.episodes)):3d}/{args.episodes}"
-                  f"  hit {shares['hit_bar']:.2f}  ground {shares['on_ground']:.2f}")
+                  f"  hit {shares['hit_bar']:.2f}  ground {shares['on_ground']:.2f}"
+                  f"  blew up {shares['blew_up']:.3f}")
     out = RESULTS / f"{args.task}_explore.json"
     write_text_atomic(out, json.dumps({"machine": machine_info(), "episodes": args.episodes,
                                        "sigma": args.sigma, "results": results}, indent=2) + "\n")
