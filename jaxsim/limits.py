@@ -29,8 +29,26 @@ from jaxsim.world import World
 def joint_coordinates(model: Model, q):
     """Per-DoF joint coordinates (nv): revolute angles and spherical rotation vectors. A free
     root's entries are its pose relative to the world origin; `build_model` refuses limits
-    there, so no limit spring acts on them."""
-    return pose_error(model, q, rest_pose(model).astype(q.dtype))
+    there, so no limit spring acts on them.
+
+    A spherical joint's rotation by θ about u is also one by θ − 2π about u; of the two
+    vectors, θ u and (θ − 2π) u, the one nearer its limits is taken. The shortest-arc vector
+    alone (θ ≤ π) flips to its antipode as θ passes π; where the limits allow angles near π on
+    some axis (the athlete's shoulders: up to 3.14 rad), the flip put the other components
+    far outside theirs in one step, and a spring torque of thousands of N·m blew up random
+    obstacle episodes. Of the two, the penalty is continuous through the flip."""
+    coordinate = pose_error(model, q, rest_pose(model).astype(q.dtype))
+    _, vi = model.topology.spherical_indices
+    if not len(vi):
+        return coordinate
+    vector = coordinate[vi]                                          # (k, 3)
+    angle = jnp.linalg.norm(vector, axis=-1, keepdims=True)
+    safe = jnp.where(angle > 0, angle, 1.0)
+    other = vector * (1.0 - 2.0 * jnp.pi / safe)                     # (θ − 2π) u
+    lower, upper = model.q_lower[vi], model.q_upper[vi]
+    outside = lambda v: jnp.sum(jnp.maximum(lower - v, 0.0) + jnp.maximum(v - upper, 0.0), -1)
+    nearer = (angle[:, 0] > 0) & (outside(other) < outside(vector))
+    return coordinate.at[vi].set(jnp.where(nearer[:, None], other, vector))
 
 
 def joint_limit_forces(model: Model, world: World, q, qd):

@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsim import (LinkSpec, build_model, characters, contact, dynamics, kinematics, rest_pose,
-                    simulation)
+from jaxsim import (LinkSpec, build_model, characters, contact, dynamics, kinematics, limits,
+                    rest_pose, rotations, simulation)
 from jaxsim.dynamics import aba, solve_spd
 from jaxsim.simulation import SimulationError, init_state, is_finite, simulate, step
 from jaxsim.tracking import tracking_model
@@ -172,6 +172,29 @@ def test_limit_damper_on_a_light_link_decays_where_an_explicit_one_would_diverge
         _, traj = run(m, wl, state.q, 600, qd=state.qd, target=jnp.array([0.5]))
         speeds = np.abs(np.asarray(traj.qd[:, 0]))
         assert np.all(np.isfinite(speeds)) and speeds.max() <= 1.0 + 1e-9
+
+
+def test_spherical_limit_springs_are_continuous_where_the_rotation_vector_flips():
+    """A shoulder-like ball joint, limits up to 3.14 rad on two axes, turned through π about an
+    axis: its shortest-arc rotation vector flips to the antipode there, which alone would take
+    the x and z components outside [−0.5, 3.14] and [−0.7, 3.14] at once (thousands of N·m in
+    one step). The limit springs, on the nearer of the two vectors, barely change."""
+    base = LinkSpec("base", None, "fixed", mass=1.0, shape="sphere", shape_size=(0.05, 0, 0))
+    arm = LinkSpec("arm", "base", "spherical", mass=2.0, shape="capsule",
+                   shape_pos=(0.0, -0.15, 0.0), shape_size=(0.04, 0.22, 0.0),
+                   q_lower=(-0.5, -1.5, -0.7), q_upper=(3.14, 1.5, 3.14))
+    model = build_model([base, arm], dtype=jnp.float64)
+    w = world(ground=False)
+    axis = jnp.array([0.6, -0.08, 0.8]) / np.linalg.norm([0.6, -0.08, 0.8])
+    springs, shortest = [], []
+    for angle in (np.pi - 0.01, np.pi + 0.01):
+        q = rotations.axis_angle_to_quat(axis, jnp.asarray(angle))
+        springs.append(np.asarray(limits.joint_limit_forces(model, w, q, jnp.zeros(3))[0]))
+        shortest.append(np.asarray(rotations.quat_to_rotvec(q)))
+    assert np.max(np.abs(springs[1] - springs[0])) < 0.05 * 2000.0
+    # The shortest-arc vectors themselves jump across the x and z limits.
+    assert shortest[0][0] > 0 > -0.5 > shortest[1][0]
+    assert shortest[0][2] > 0 > -0.7 > shortest[1][2]
 
 
 def test_torque_limits_clip_and_resolve():
