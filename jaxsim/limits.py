@@ -13,12 +13,11 @@ while d Δt / I < 2, and a light link's I can be far smaller: with d = 50 N·m·
 whenever a torque limit bound and the step was re-solved without K_d Δt, random high-jump
 episodes ran away in about 1 % of cases, mostly at the neck.
 
-Torque limits bound each motor's torque to ±`Model.torque_limit` (`within_torque_limits`, called
-by `jaxsim.simulation.step` where an SPD torque exceeds its limit; docs/design.md, "Simulation
-step").
+Torque limits clip the joint torques of the SPD solve per DoF to ±`Model.torque_limit`; where
+one binds, `jaxsim.simulation.step` re-solves with the clipped torques applied as given
+(docs/design.md, "Simulation step").
 """
 
-import jax
 import jax.numpy as jnp
 
 from jaxsim.dynamics import pose_error
@@ -61,38 +60,4 @@ def joint_limit_forces(model: Model, world: World, q, qd):
     spring = world.limit_stiffness * (jnp.maximum(under, 0.0) - jnp.maximum(over, 0.0))
     moving_out = ((over > 0) & (qd > 0)) | ((under > 0) & (qd < 0))
     return spring, jnp.where(moving_out, world.limit_damping, 0.0).astype(qd.dtype)
-
-
-# SPD re-solves of `within_torque_limits` before its final solve: in 1,536 binding substeps (the
-# first of each control step) of random obstacle episodes, the set of held motors was complete
-# after one re-solve at 50 %, after two at 98 %, and never needed more than three.
-TORQUE_LIMIT_RESOLVES = 2
-
-
-def within_torque_limits(model: Model, tau, spd, applied, resolves: int = TORQUE_LIMIT_RESOLVES):
-    """q̈ of a step whose SPD motor torques `tau` (nv) exceed some of their limits.
-
-    A motor past its limit is held at it, a constant torque, while the others stay under
-    stable PD (their K_d Δt in the effective inertia, thesis eq. 2.7): `spd(model, torques)`
-    solves SPD with `model`'s gains and `torques` applied as given, and returns (q̈, τ). A free
-    motor whose torque then exceeds its own limit is held too, for `resolves` re-solves. The
-    final solve, `applied(torques)` → q̈, applies every motor's torque as given: the held ones
-    at their limits, the free ones as the last re-solve computed them, clipped. Where that set
-    was complete, this is the last re-solve's q̈ again; where not, the limits still hold.
-
-    Solving once with every clipped first-solve torque applied as given, as plain ABA, takes
-    all K_d Δt out of the step: light arms then ran away in ~15 % of random obstacle episodes.
-    """
-    limit = model.torque_limit
-    clip = lambda t: jnp.clip(t, -limit, limit)
-
-    def resolve(_, carry):
-        held, torque = carry
-        free = lambda gain: jnp.where(held, jnp.zeros_like(gain), gain)
-        _, tau_free = spd(model.replace(kp=free(model.kp), kd=free(model.kd)),
-                          jnp.where(held, torque, jnp.zeros_like(torque)))
-        return held | (jnp.abs(tau_free) > limit), jnp.where(held, torque, clip(tau_free))
-
-    _, torque = jax.lax.fori_loop(0, resolves, resolve, (jnp.abs(tau) > limit, clip(tau)))
-    return applied(torque)
 

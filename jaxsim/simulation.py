@@ -1,10 +1,9 @@
 """The simulation step and multi-step simulation (docs/design.md, "Simulation step").
 
 One step: collisions → contact forces → joint-limit torques → SPD solve (thesis eq. 2.7, by the
-chosen method; the joint-limit dampers implicit in it) → torque limits (where they bind, the
-motors past them held at them and the rest solved again under SPD: `limits.within_torque_limits`)
-→ semi-implicit Euler (q̇ ← q̇ + Δt q̈, then q advanced with the new velocity, quaternions on
-the manifold).
+chosen method; the joint-limit dampers implicit in it) → torque limits (clip, and where they
+bind re-solve with the clipped torques applied as given) → semi-implicit Euler (q̇ ← q̇ + Δt q̈,
+then q advanced with the new velocity, quaternions on the manifold).
 
 All functions act on one character; batch with `jax.vmap`, or faster with `simulate_batch`
 (which computes with the batch innermost, `jaxsim.batch_last`).
@@ -154,17 +153,11 @@ def step(model: Model, world: World, state: State, target, dt, method: str = "ma
     qdd, tau = solve_spd(model, q, qd, target, dt, method, f_ext, world.gravity, spring,
                          target_velocity, damper)
     if world.torque_limits:
-        springs = jnp.zeros_like(qd) if spring is None else spring
-
-        def spd(gains, motors):
-            return solve_spd(gains, q, qd, target, dt, method, f_ext, world.gravity,
-                             motors + springs, target_velocity, damper)
-
-        def applied(motors):
-            return solve_applied(model, q, qd, motors + springs, dt, f_ext, world.gravity,
-                                 damper)
-        qdd = jax.lax.cond(jnp.any(jnp.abs(tau) > model.torque_limit),
-                           lambda: limits.within_torque_limits(model, tau, spd, applied),
+        clipped = jnp.clip(tau, -model.torque_limit, model.torque_limit)
+        applied = clipped if spring is None else clipped + spring
+        qdd = jax.lax.cond(jnp.any(clipped != tau),
+                           lambda: solve_applied(model, q, qd, applied, dt, f_ext, world.gravity,
+                                                 damper),
                            lambda: qdd)
     qd_next = qd + dt * qdd
     return State(kinematics.integrate(model, q, qd_next, dt), qd_next, stretch, touching)

@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsim import (LinkSpec, build_model, characters, contact, dynamics, kinematics, limits,
-                    rest_pose, rotations, simulation)
+from jaxsim import (LinkSpec, build_model, characters, contact, kinematics, limits, rest_pose,
+                    rotations, simulation)
 from jaxsim.dynamics import aba, solve_spd
 from jaxsim.simulation import SimulationError, init_state, is_finite, simulate, step
 from jaxsim.tracking import tracking_model
@@ -212,60 +212,6 @@ def test_torque_limits_clip_and_resolve():
     gentle = step(model, w, state, jnp.array([0.31]), DT)
     np.testing.assert_allclose(gentle.qd, step(model, w.replace(torque_limits=False), state,
                                                jnp.array([0.31]), DT).qd, rtol=1e-12)
-
-
-def _arm(shoulder_limit, forearm_mass=0.3):
-    """A shoulder (heavy upper arm) and an elbow (light forearm) on a fixed base, in the plane."""
-    base = LinkSpec("base", None, "fixed", mass=1.0, shape="sphere", shape_size=(0.05, 0, 0))
-    upper = LinkSpec("upper", "base", "revolute", mass=2.0, shape="capsule", axis=(0, 0, 1),
-                     shape_pos=(0.0, -0.15, 0.0), shape_size=(0.04, 0.22, 0.0), kp=300.0,
-                     kd=30.0, torque_limit=shoulder_limit)
-    fore = LinkSpec("fore", "upper", "revolute", mass=forearm_mass, joint_pos=(0.0, -0.3, 0.0),
-                    shape="sphere", axis=(0, 0, 1), shape_pos=(0.0, -0.1, 0.0),
-                    shape_size=(0.03, 0, 0), kp=300.0, kd=30.0, torque_limit=100.0)
-    return build_model([base, upper, fore], dtype=jnp.float64)
-
-
-def test_a_saturated_motor_is_held_at_its_limit_while_the_others_stay_under_spd():
-    """The step's q̈ against the mixed system solved densely by hand: the shoulder motor's
-    torque at its limit, the elbow's the SPD law with its K_d Δt implicit (thesis eq. 2.7),
-    (M + diag(0, K_d Δt)) q̈ = [τ_max; Q_elbow] − C. Applying the first solve's clipped torques
-    as given (plain ABA) answers differently, so the test tells them apart."""
-    model = _arm(shoulder_limit=5.0)
-    w = world(ground=False, joint_limits=False, torque_limits=True)
-    q, qd, target = jnp.array([0.2, 0.4]), jnp.array([0.5, -2.0]), jnp.array([2.0, 0.3])
-    after = step(model, w, init_state(model, w, q, qd), target, DT)
-    qdd = (after.qd - qd) / DT
-    first, tau = solve_spd(model, q, qd, target, DT, "dense", gravity=w.gravity)
-    assert float(tau[0]) > 5.0 and abs(float(tau[1])) < 100.0     # only the shoulder binds
-    mass = np.asarray(dynamics.mass_matrix(model, q))
-    bias = np.asarray(dynamics.bias_torques(model, q, qd, gravity=w.gravity))
-    spd = np.asarray(dynamics.spd_force(model, q, qd, target, DT))
-    lhs = mass + np.diag([0.0, 30.0 * DT])
-    expected = np.linalg.solve(lhs, np.array([5.0, spd[1]]) - bias)
-    np.testing.assert_allclose(qdd, expected, rtol=1e-9)
-    explicit = aba(model, q, qd, jnp.clip(tau, -5.0, 5.0), gravity=w.gravity)
-    assert np.max(np.abs(np.asarray(explicit) - expected)) > 1e-3 * np.max(np.abs(expected))
-    # The elbow's torque, by inverse dynamics from q̈, is its SPD law at the new q̈.
-    applied = np.asarray(dynamics.rnea(model, q, qd, qdd, gravity=w.gravity))
-    np.testing.assert_allclose(applied, [5.0, spd[1] - 30.0 * DT * expected[1]], rtol=1e-9)
-
-
-def test_a_light_link_beside_a_saturated_motor_stays_stable():
-    """A forearm light enough that its elbow's K_d Δt / I ≈ 5 (explicit PD needs < 2) beside a
-    shoulder motor held at its limit for the whole second: the elbow stays under stable PD and
-    settles. Applying the clipped first-solve torques as given (the old re-solve) took the
-    elbow's K_d Δt out of every step: the elbow swung out to 1.4 rad and, after the second, was
-    still 0.15 rad off its target and moving at 5 rad/s."""
-    model = _arm(shoulder_limit=1.0, forearm_mass=0.9)
-    inertia = 0.9 * (0.1**2 + 0.4 * 0.03**2)
-    assert 4 < 30.0 * DT / inertia < 8
-    w = world(ground=False, joint_limits=False, torque_limits=True, gravity=(0, 0, 0))
-    state = init_state(model, w, jnp.array([0.0, 0.0]), jnp.array([0.0, 3.0]))
-    _, traj = simulate(model, w, state, jnp.tile(jnp.array([3.0, 0.5]), (600, 1)), DT)
-    elbow = np.asarray(traj.q[:, 1])
-    assert np.all(np.isfinite(elbow))
-    assert abs(elbow[-1] - 0.5) < 0.05 and np.abs(np.asarray(traj.qd[-60:, 1])).max() < 0.5
 
 
 def test_gravity_is_a_parameter_mars_and_earth_in_one_call():
