@@ -128,8 +128,8 @@ def explore(args):
                                                 control_hz=10.0)
     env = jump.JumpEnv(settings, reference_data("jump"))
     hold = pose_features.target_to_exp(env.model, pose_features.pd_target(env.model, env.q0))
-    # One outcome per episode, the first listed of those that ended it: a blow-up first, for
-    # what a blown-up step touched is not physics.
+    # One outcome per episode, the first listed of those that ended it: a blow-up before any
+    # other failure, for what a blown-up step touched is not physics.
     names = ("success", "blew_up", *(f for f in jump.FAILURES if f != "blew_up"))
 
     def episode(x, actions):

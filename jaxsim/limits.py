@@ -35,18 +35,21 @@ def joint_coordinates(model: Model, q):
     alone (θ ≤ π) flips to its antipode as θ passes π; where the limits allow angles near π on
     some axis (the athlete's shoulders: up to 3.14 rad), the flip put the other components
     far outside theirs in one step, and a spring torque of thousands of N·m blew up random
-    obstacle episodes. Of the two, the penalty is continuous through the flip."""
+    obstacle episodes. The total violation of the nearer one is continuous through the flip;
+    its spring torque can still change sign there where both lie equally far outside (a turn
+    about an axis whose limits are symmetric, such as the shoulder's ±1.5 rad on y)."""
     coordinate = pose_error(model, q, rest_pose(model).astype(q.dtype))
     _, vi = model.topology.spherical_indices
     if not len(vi):
         return coordinate
     vector = coordinate[vi]                                          # (k, 3)
-    angle = jnp.linalg.norm(vector, axis=-1, keepdims=True)
-    safe = jnp.where(angle > 0, angle, 1.0)
-    other = vector * (1.0 - 2.0 * jnp.pi / safe)                     # (θ − 2π) u
+    squared = jnp.sum(vector * vector, axis=-1, keepdims=True)
+    rotated = squared > 0
+    angle = jnp.sqrt(jnp.where(rotated, squared, 1.0))      # no NaN gradient at rest
+    other = vector * (1.0 - 2.0 * jnp.pi / angle)                    # (θ − 2π) u
     lower, upper = model.q_lower[vi], model.q_upper[vi]
     outside = lambda v: jnp.sum(jnp.maximum(lower - v, 0.0) + jnp.maximum(v - upper, 0.0), -1)
-    nearer = (angle[:, 0] > 0) & (outside(other) < outside(vector))
+    nearer = rotated[:, 0] & (outside(other) < outside(vector))
     return coordinate.at[vi].set(jnp.where(nearer[:, None], other, vector))
 
 

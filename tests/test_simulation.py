@@ -151,8 +151,9 @@ def test_limit_damper_on_a_light_link_decays_where_an_explicit_one_would_diverge
     """A foot-sized link (1 kg, 5 cm from its hinge) moving out of its limit with only the
     damper acting (no spring, no motor gains, no gravity): d Δt / I ≈ 29, far past an explicit
     damper's stability bound of 2 (at the neck, such runaways blew up high-jump episodes). The
-    implicit damper gives q̇ ← q̇ / (1 + d Δt / I) each step, analytically, also when a torque
-    limit binds and the step is re-solved with the clipped torques."""
+    implicit damper gives q̇ ← q̇ / (1 + d Δt / I) each step, analytically; with a motor pushing
+    into the limit past its torque limit (the step re-solved with the clipped torque) the
+    speed stays bounded."""
     link = LinkSpec("base", None, "fixed", mass=1.0, shape="sphere", shape_size=(0.05, 0, 0))
     tip = LinkSpec("tip", "base", "revolute", mass=1.0, shape="sphere", axis=(0, 0, 1),
                    shape_pos=(0.0, -0.05, 0.0), shape_size=(0.03, 0, 0), kp=0.0, kd=0.0,
@@ -192,6 +193,9 @@ def test_spherical_limit_springs_are_continuous_where_the_rotation_vector_flips(
         springs.append(np.asarray(limits.joint_limit_forces(model, w, q, jnp.zeros(3))[0]))
         shortest.append(np.asarray(rotations.quat_to_rotvec(q)))
     assert np.max(np.abs(springs[1] - springs[0])) < 0.05 * 2000.0
+    # At rest the choice of vector has a finite gradient (no 0 · ∞ from the angle's norm).
+    grad = jax.grad(lambda q: jnp.sum(limits.joint_limit_forces(model, w, q, jnp.zeros(3))[0]))
+    assert np.all(np.isfinite(np.asarray(grad(jnp.array([1.0, 0.0, 0.0, 0.0])))))
     # The shortest-arc vectors themselves jump across the x and z limits.
     assert shortest[0][0] > 0 > -0.5 > shortest[1][0]
     assert shortest[0][2] > 0 > -0.7 > shortest[1][2]
