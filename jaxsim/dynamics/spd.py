@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
 from jaxsim import rotations
-from jaxsim.dynamics.aba import aba, articulated_body_solve
+from jaxsim.dynamics.aba import articulated_body_solve
 from jaxsim.dynamics.crba import mass_matrix
 from jaxsim.dynamics.ltdl import ltdl_factor, ltdl_solve
 from jaxsim.dynamics.rnea import bias_torques
@@ -68,10 +68,8 @@ def solve_applied(model: Model, q, qd, tau, dt, f_ext=None, gravity=None, passiv
     """Accelerations under the joint torques `tau` (nv) applied as given, plus passive dampers
     −d (q̇ + Δt q̈) with d = `passive_damping` (nv, N·m·s/rad; none by default), solved
     implicitly: (M + d Δt) q̈ = τ − d q̇ − C, by the ABA of MABA in O(n)."""
-    if passive_damping is None:
-        return aba(model, q, qd, tau, f_ext, gravity)
-    return articulated_body_solve(model, q, qd, tau - passive_damping * qd,
-                                  passive_damping * dt, f_ext, gravity)
+    passive = jnp.zeros_like(qd) if passive_damping is None else passive_damping
+    return articulated_body_solve(model, q, qd, tau - passive * qd, passive * dt, f_ext, gravity)
 
 
 def solve_spd(model: Model, q, qd, target, dt, method="maba", f_ext=None, gravity=None,
