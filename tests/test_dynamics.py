@@ -237,3 +237,14 @@ def test_unknown_method_is_rejected(models):
     q, qd, target = random_state(model, 0)
     with pytest.raises(ValueError, match="unknown SPD method 'cholesky'"):
         dynamics.solve_spd(model, q, qd, target, DT, "cholesky")
+
+
+@pytest.mark.parametrize("argument", ["tau", "passive_damping"])
+def test_solve_applied_rejects_wrong_lengths(models, argument):
+    model = models["humanoid"]
+    q, qd, _ = random_state(model, 0)
+    arrays = {"tau": jnp.zeros(model.nv), "passive_damping": jnp.ones(model.nv)}
+    arrays[argument] = arrays[argument][:-1]
+    with pytest.raises(ValueError, match=rf"{argument}: expected shape \({model.nv},\)"):
+        dynamics.solve_applied(model, q, qd, arrays["tau"], DT,
+                               passive_damping=arrays["passive_damping"])

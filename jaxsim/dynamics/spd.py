@@ -67,7 +67,12 @@ def spd_force(model: Model, q, qd, target, dt, target_velocity=None):
 def solve_applied(model: Model, q, qd, tau, dt, f_ext=None, gravity=None, passive_damping=None):
     """Accelerations under the joint torques `tau` (nv) applied as given, plus passive dampers
     −d (q̇ + Δt q̈) with d = `passive_damping` (nv, N·m·s/rad; none by default), solved
-    implicitly: (M + d Δt) q̈ = τ − d q̇ − C, by the ABA of MABA in O(n)."""
+    implicitly: (M + d Δt) q̈ = τ − d q̇ − C, by the ABA of MABA in O(n). Arrays of the wrong
+    length raise ValueError."""
+    for name, value, layout in (("q", q, "nq"), ("qd", qd, "nv"), ("tau", tau, "nv"),
+                                ("passive_damping", passive_damping, "nv")):
+        if value is not None:
+            check_layout(model, name, value, layout)
     passive = jnp.zeros_like(qd) if passive_damping is None else passive_damping
     return articulated_body_solve(model, q, qd, tau - passive * qd, passive * dt, f_ext, gravity)
 
