@@ -65,7 +65,7 @@ state = parallel.lay_out(state, two.state_sharding)
 collected = two.collect(state)
 print(json.dumps({
     "devices": len(jax.devices()),
-    "rollout": collectives(two._compiled[None].lower(state).compile().as_text()),
+    "rollout": collectives(two._compiled[None].lower(state, two.env_params).compile().as_text()),
     "update": collectives(two._learn_compiled.lower(
         *parallel.lay_out((state, collected), two._learn_inputs)).compile().as_text()),
     "update_devices": len(two.update_layout.mesh.devices.ravel()),

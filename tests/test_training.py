@@ -494,3 +494,23 @@ def test_the_record_that_says_a_run_stopped_is_logged_after_its_checkpoint(
     assert last == (3 if "iterations" in stop else 1)
     assert on_disk[last] == (run_dir / trainer_lib.CHECKPOINT).read_bytes()
     assert not previous_path(run_dir / trainer_lib.CHECKPOINT).exists()   # saved once
+
+
+def test_trainings_that_differ_only_in_the_take_off_state_compile_one_rollout(tmp_path, data_dir):
+    """The task parameters are an argument of the compiled rollout, not constants in it: the
+    evaluations of a strategy search, each from its own x, compile the same program (which a
+    persistent compilation cache finds), and each still rolls out from its own x."""
+    from conftest import tiny_highjump_training
+    config = tmp_path / "tiny.toml"
+    config.write_text(tiny_highjump_training(1))
+    programs, starts = [], []
+    for x in ([-0.05, -3.0, 1.0, -2.4], [1.65, 1.0, 0.88, -2.21]):
+        trainer = train_commands.make_trainer(
+            train_commands.load_config(config, [f"highjump.takeoff={x}"]), data_dir)
+        state = trainer.init()
+        programs.append(trainer.rollout_program(state.curriculum).lower(
+            state, trainer.env_params).as_text())
+        np.testing.assert_allclose(trainer.env_params["takeoff"], x, rtol=1e-6)
+        starts.append(np.asarray(state.runner.envs.physics.qd))
+    assert programs[0] == programs[1]
+    assert not np.allclose(starts[0], starts[1])

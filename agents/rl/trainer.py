@@ -147,6 +147,7 @@ class Trainer:
         self._evaluations = {}                   # deterministic episode rollouts, by static key
         self._variants = {}                      # the environment's variants, by static key
         self.state_sharding, self._collected_sharding = _shardings(layout)
+        self._params_sharding = layout.envs if params_per_env else layout.replicated
         learn_state, learn_collected = _shardings(learn)
         self._learn_inputs = (learn_state, learn_collected)
         self._learn_compiled = jax.jit(
@@ -268,21 +269,28 @@ class Trainer:
         return self.learn(state, self.collect(state))
 
     def collect(self, state: TrainState):
-        """The rollout of an iteration (the first program), compiled once per static key of the
-        curriculum, on the run's devices."""
+        """The rollout of an iteration (the first program, `rollout_program`), on the run's
+        devices."""
         key = self._static_key(state.curriculum)
-        compiled = self._compiled.get(key)
-        if compiled is None:
-            rollout = self._rollout_of(self.env_for(state.curriculum))
-            compiled = jax.jit(functools.partial(self._collect, rollout),
-                               compiler_options=xla_options.simulation_options(),
-                               in_shardings=(self.state_sharding,),
-                               out_shardings=self._collected_sharding)
+        compiled = self._compiled.get(key) or self.rollout_program(state.curriculum)
         if self.update_layout is not self.layout:    # (a copy only where the layouts differ)
             state = parallel.lay_out(state, self.state_sharding)
-        collected = compiled(state)
+        collected = compiled(state, self.env_params)
         self._compiled[key] = compiled       # known compiled once a call of it has returned
         return collected
+
+    def rollout_program(self, curriculum_state):
+        """The jitted rollout of an iteration under the curriculum's state, `(state,
+        env_params) -> collected`, compiled on its first call (by `collect`, once per static
+        key of the curriculum). The task parameters are an argument of the program, not
+        constants in it, so trainings that differ only in them (the evaluations of a strategy
+        search, each from its own take-off state x) compile the same program, which a
+        persistent compilation cache then finds."""
+        rollout = self._rollout_of(self.env_for(curriculum_state))
+        return jax.jit(functools.partial(self._collect, rollout),
+                       compiler_options=xla_options.simulation_options(),
+                       in_shardings=(self.state_sharding, self._params_sharding),
+                       out_shardings=self._collected_sharding)
 
     def learn(self, state: TrainState, collected):
         """The rest of an iteration from its rollout (the second program), on the update's
