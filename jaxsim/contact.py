@@ -143,10 +143,14 @@ def box_distance(point, center, rotation, half_size):
     excess = jnp.abs(local) - half_size
     outside = jnp.maximum(excess, 0.0)
     out_dist = _safe_norm(outside)
-    in_dist = jnp.minimum(jnp.max(excess, -1), 0.0)
+    face = jax.nn.one_hot(jnp.argmax(excess, -1), 3, dtype=point.dtype)   # the nearest face
+    # The largest excess picked by its face, not by `jnp.max`: max's derivative finds the
+    # maximum by comparing it for equality with its operand, which XLA may compute again with
+    # other rounding, and then divides by the zero matches it found (NaN gradients in float32
+    # under unoptimised compilation, even where the point is outside and in_dist is 0).
+    in_dist = jnp.minimum(jnp.sum(face * excess, -1), 0.0)
     sign = jnp.where(local < 0, -1.0, 1.0)
     out_normal = sign * outside / jnp.where(out_dist > 0, out_dist, 1.0)[..., None]
-    face = jax.nn.one_hot(jnp.argmax(excess, -1), 3, dtype=point.dtype)
     normal_local = jnp.where((out_dist > 0)[..., None], out_normal, sign * face)
     return out_dist + in_dist, mat_vec(rotation, normal_local)
 

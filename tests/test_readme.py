@@ -3,6 +3,7 @@ written, made small by a few overrides (fewer iterations, environments and epoch
 batch; a data folder with a few clips of each kind), in a fresh folder beside which the configs
 and benchmarks are linked. Anything a user types from the README that fails fails here."""
 
+import json
 import os
 import re
 import shlex
@@ -118,6 +119,9 @@ def test_every_command_line_runs_in_order(workspace):
         if words[0] != "takeoff":
             words = [sys.executable if words[0] == "python" else words[0], *words[1:]]
         run(words, home, env)
+    # the float32 high jump's gradients, finite and agreeing with the finite differences
+    study = json.loads((home / "runs/sensitivity_highjump/sensitivity.json").read_text())
+    assert all(row["agrees"] for row in study["rows"]), study["rows"]
     for made in ("humanoid.xml", "poses.npz", "runs/pvae/pvae.msgpack", "walk.gif", "jump.gif",
                  "runs/imitate_walk/learning_curve.png", "runs/report/flop_peak.png",
                  "runs/report/flop_above_below.png"):
