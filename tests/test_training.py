@@ -19,6 +19,7 @@ from agents.rl.rollout import make_rollout, start_runner
 from agents.tasks.reach import ReachEnv, ReachSettings
 from jaxsim import atomic
 from jaxsim.atomic import OutputError, hold_directory
+from conftest import tiny_highjump_training
 
 CONFIG = "configs/reach.toml"
 
@@ -500,7 +501,6 @@ def test_trainings_that_differ_only_in_the_take_off_state_compile_one_rollout(tm
     """The task parameters are an argument of the compiled rollout, not constants in it: the
     evaluations of a strategy search, each from its own x, compile the same program (which a
     persistent compilation cache finds), and each still rolls out from its own x."""
-    from conftest import tiny_highjump_training
     config = tmp_path / "tiny.toml"
     config.write_text(tiny_highjump_training(1))
     programs, starts = [], []
