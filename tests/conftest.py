@@ -10,9 +10,8 @@ import pathlib
 # places. The whole run took 1,364 s in place of 1,481 s on the 2-core AMD EPYC VM
 # (2026-12-06); the tests that run long rollouts take longer, the others less. (It found one
 # gradient that depended on rounding: `jaxsim.contact.box_distance`.) Users' programs compile
-# at XLA's defaults; set
-# TAKEOFF_TEST_XLA_DEFAULTS=1 to test under them. (Before jax is imported: XLA reads the flags
-# once, when its CPU backend starts.)
+# at XLA's defaults; set TAKEOFF_TEST_XLA_DEFAULTS=1 to test under them. (Before jax is
+# imported: XLA reads the flags once, when its CPU backend starts.)
 TEST_XLA_FLAGS = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
 _flags = os.environ.get("XLA_FLAGS", "")
 if not os.environ.get("TAKEOFF_TEST_XLA_DEFAULTS") and TEST_XLA_FLAGS not in _flags:
