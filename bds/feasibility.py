@@ -11,15 +11,23 @@ c(x) > 0 modelled by its own GP, and each acquisition a(x) is replaced by a(x) �
 (maximised as its logarithm, `weighted`).
 
 The constraint's observations are the evaluations' outcomes as labels, c = +1 for a success and
-−1 for a failure, fitted by `bds.gp` like a feature (Matérn-5/2, hyperparameters by marginal
-likelihood) with prior mean 0 — nothing known is an even chance — and unit scale, but with one
-lengthscale for every dimension: a handful of binary outcomes cannot tell the dimensions apart
-(fitted per dimension to the high-jump search's first four outcomes, the model put all its
-weight on ω_z and gave the next pick, which failed, P = 1.00). Then
-P[c(x) > 0] = Φ(μ_c(x) / σ_c(x)), with σ_c the latent posterior standard deviation: near a
-success it tends to 1, near a failure to 0, and far from every evaluation to ½. GP regression on
-labels is the least-squares classifier of Rasmussen & Williams (2006, §6.5); it needs no
-approximate inference and reuses the feature GP's code.
+−1 for a failure, fitted by `bds.gp` like a feature (Matérn-5/2) with prior mean 0 — nothing
+known is an even chance — and unit scale, but with one lengthscale for every dimension: a
+handful of binary outcomes cannot tell the dimensions apart (fitted per dimension to the
+high-jump search's first four outcomes, the model put all its weight on ω_z and gave the next
+pick, which failed, P = 1.00). Then P[c(x) > 0] = Φ(μ_c(x) / σ_c(x)), with σ_c the latent
+posterior standard deviation: near a success it tends to 1, near a failure to 0, and far from
+every evaluation to ½. GP regression on labels is the least-squares classifier of Rasmussen &
+Williams (2006, §6.5); it needs no approximate inference and reuses the feature GP's code.
+
+Its hyperparameters are fitted under `bds.gp`'s weak priors (`hyperprior`), not by the marginal
+likelihood alone. With one success and four failures in 4-D (the narrower-box high-jump search,
+docs/discovery) the likelihood has two degenerate maxima, and the random restarts decide which
+one the fit lands in: a lengthscale of 0.03–0.07 box widths, where every point not evaluated
+gets P = ½, or pure noise (a lengthscale of 5–10 widths and σ_n² ≈ 0.8), where every point gets
+P ≈ 0.14, the success's own included. Either way the weights say nothing. Under the priors the
+fit is the same for every key, a lengthscale of 0.78 widths with little noise: P = 1 at the
+success, 0 at the failures, and in between away from them.
 """
 
 import jax.numpy as jnp
@@ -37,7 +45,7 @@ def fit(x, succeeded, mask, key, restarts, steps):
     (capacity,) bool, real rows where `mask`."""
     labels = jnp.where(jnp.asarray(succeeded), SUCCESS, FAILURE)[:, None]
     return gp.fit(x, labels, mask, prior_mean=0.0, key=key, restarts=restarts, steps=steps,
-                  min_scale=1.0, isotropic=True)
+                  min_scale=1.0, isotropic=True, hyperprior=True)
 
 
 def log_success_probability(model: gp.Posterior, x):

@@ -109,6 +109,29 @@ def test_success_probability_is_phi_of_mean_over_std_and_follows_the_outcomes():
     assert feasibility.weighted(acquisition_value, None) is acquisition_value
 
 
+def test_success_model_fit_does_not_depend_on_the_restarts():
+    """The narrower-box high-jump search's first five outcomes (one success, four failures; the
+    unit-box x of docs/discovery/box2/evaluations.jsonl, rounded): by the marginal likelihood
+    alone the fit fell, key by key, into a lengthscale of a few hundredths (P = ½ at every point
+    not evaluated) or into pure noise (P ≈ 0.14 everywhere, the success included). Under
+    bds.gp's priors every key gives one fit, and it follows the outcomes (bds.feasibility)."""
+    from bds import feasibility
+    x = np.array([[0.637, 0.27, 0.041, 0.017], [0.89, 0.557, 0.801, 0.957],
+                  [0.081, 0.402, 0.601, 0.145], [0.895, 0.86, 0.321, 0.317],
+                  [0.0, 1.0, 0.0, 1.0]])
+    succeeded = np.array([True, False, False, False, False])
+    fits = [feasibility.fit(x, succeeded, np.ones(5, bool), jax.random.PRNGKey(key), 8, 200)
+            for key in range(4)]
+    lengthscales = [float(model.hyper.lengthscales[0, 0]) for model in fits]
+    np.testing.assert_allclose(lengthscales, lengthscales[0], rtol=1e-3)
+    assert 0.2 < lengthscales[0] < 5.0, lengthscales
+    far_corner = np.array([[0.0, 0.0, 0.0, 1.0]])        # 1 box width from the nearest failure
+    probability = feasibility.success_probability(fits[0], jnp.asarray(np.vstack([x, far_corner])))
+    assert float(probability[0]) > 0.9, probability
+    assert float(jnp.max(probability[1:5])) < 0.1, probability
+    assert 0.2 < float(probability[5]) < 0.8, probability
+
+
 def test_monte_carlo_diversity_converges_to_the_closed_form():
     rng = np.random.default_rng(4)
     x = rng.uniform(size=(6, 1))

@@ -691,19 +691,20 @@ def test_with_no_success_yet_the_model_picks_are_random_points():
 
 def test_the_success_model_keeps_picks_out_of_the_failing_region():
     """Half the box fails (x[0] < 0.5). Weighting the picks by the chance of success
-    (`feasibility`) must spend fewer of the model-based picks there than Algorithm 1 as written,
-    over the same seeds; with no failure yet the two plan the same points."""
+    (`feasibility`) must spend clearly fewer of the model-based picks there than Algorithm 1 as
+    written, over the same eight seeds (measured: 18 of 64 against 37; the success model fitted
+    without its hyperparameter priors, 17); with no failure yet the two plan the same points."""
     failing = _fails_left_of(0.5)
     def failed_picks(feasible):
         count = 0
-        for seed in range(4):
+        for seed in range(8):
             settings = SearchSettings(budget=12, initial=4, explore=2, diverse=2, seed=seed,
                                       feasibility=feasible, **FAST)
             result = search(failing, [0, 0], [1, 1], settings)
             count += sum(f is not None for f in result.failures[4:])
         return count
     plain, feasible = failed_picks(False), failed_picks(True)
-    assert feasible < plain / 2, (feasible, plain)
+    assert feasible < 0.6 * plain, (feasible, plain)
     succeeding = lambda x: np.array([np.sin(4 * x[0]) + x[1]])
     runs = [search(succeeding, [0, 0], [1, 1],
                    SearchSettings(budget=6, initial=3, explore=1, diverse=1, seed=2,
