@@ -13,9 +13,9 @@ c(x) > 0 modelled by its own GP, and each acquisition a(x) is replaced by a(x) �
 The constraint's observations are the evaluations' outcomes as labels, c = +1 for a success and
 −1 for a failure, fitted by `bds.gp` like a feature (Matérn-5/2) with prior mean 0 — nothing
 known is an even chance — and unit scale, but with one lengthscale for every dimension: a
-handful of binary outcomes cannot tell the dimensions apart (fitted per dimension to the
-high-jump search's first four outcomes, the model put all its weight on ω_z and gave the next
-pick, which failed, P = 1.00). Then P[c(x) > 0] = Φ(μ_c(x) / σ_c(x)), with σ_c the latent
+handful of binary outcomes cannot tell the dimensions apart (fitted per dimension, by the
+likelihood alone, to the high-jump search's first four outcomes, the model put all its weight
+on ω_z and gave the next pick, which failed, P = 1.00). Then P[c(x) > 0] = Φ(μ_c(x) / σ_c(x)), with σ_c the latent
 posterior standard deviation: near a success it tends to 1, near a failure to 0, and far from
 every evaluation to ½. GP regression on labels is the least-squares classifier of Rasmussen &
 Williams (2006, §6.5); it needs no approximate inference and reuses the feature GP's code.
@@ -25,9 +25,11 @@ likelihood alone. With one success and four failures in 4-D (the narrower-box hi
 docs/discovery) the likelihood has two degenerate maxima, and the random restarts decide which
 one the fit lands in: a lengthscale of 0.03–0.07 box widths, where every point not evaluated
 gets P = ½, or pure noise (a lengthscale of 5–10 widths and σ_n² ≈ 0.8), where every point gets
-P ≈ 0.14, the success's own included. Either way the weights say nothing. Under the priors the
-fit is the same for every key, a lengthscale of 0.78 widths with little noise: P = 1 at the
-success, 0 at the failures, and in between away from them.
+P ≈ 0.14, the success's own included. Either way the weights say nothing. Under the priors
+every random start gives the same fit, a lengthscale of 0.78 widths with little noise: P ≈ 1
+at the success, ≈ 0 at the failures, and in between away from them. A smooth fit can be
+confidently wrong too (fitted so to three successes and two failures, it gave a pick that then
+failed P = 0.996, docs/discovery "A fourth search"), but it learns from every outcome.
 """
 
 import jax.numpy as jnp

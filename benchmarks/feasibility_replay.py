@@ -11,7 +11,8 @@ Run:  python benchmarks/feasibility_replay.py [SEARCH_DIR]   (a markdown table; 
 
 SEARCH_DIR (default docs/discovery) is any high-jump search's directory: on a search made with
 the success model on, the two pick columns agree, which checks that the replay fits the model
-as the search did.
+as the search did; for picks planned before 2026-12-06, when the success model was fitted by
+its marginal likelihood alone (not under priors, as now), they need not.
 """
 
 import dataclasses
