@@ -14,7 +14,7 @@ import pytest
 from agents.commands import strategy_search
 from agents.discovery import jump_black_box
 from agents.rl import trainer as trainer_lib
-from bds.search import Failure, logged_evaluations
+from bds.search import Failure, SearchError, logged_evaluations
 from conftest import tiny_highjump_training
 
 
@@ -99,24 +99,49 @@ def test_a_search_killed_mid_training_resumes_it_and_records_the_failure(tmp_pat
 
 
 @pytest.mark.parametrize("success, gives_up", [(0.01, True), (0.02, False)])
-def test_a_training_is_given_up_by_its_record_at_the_give_up_point(tmp_path, success, gives_up):
-    """The give-up rule reads the record at the first leg's end, not the last one: a search
-    killed in the second leg does not give up a training that has since fallen back."""
+def test_a_training_is_given_up_by_its_record_at_the_give_up_point(success, gives_up):
+    """The give-up rule reads the record at its point, not the last one: a search killed in
+    the next leg does not give up a training that has since fallen back."""
     settings = jump_black_box.JumpBlackBoxSettings(give_up_samples=400, give_up_success=0.01)
-    box = jump_black_box.JumpBlackBox(settings, tmp_path)
-    run_dir = tmp_path / "train"
-    run_dir.mkdir()
+    [(iteration, judge)] = jump_black_box.JumpBlackBox(settings, None).give_up_points(100)
+    assert iteration == 4
     records = [{"iteration": i, "samples": 100 * i, "seconds": 1.0 * i, "env/episode/success": s}
                for i, s in ((3, 0.0), (4, success), (5, 0.0))]
-    (run_dir / trainer_lib.METRICS).write_text("".join(json.dumps(r) + "\n" for r in records))
-    assert box._going_nowhere(run_dir, iterations=4) == gives_up
+    why = judge(records, iteration)
+    assert (why == "at most 1% of the episodes succeeded after 400 samples") == gives_up
+    assert gives_up or why is None
+
+
+@pytest.mark.parametrize("shares, gives_up", [((0.0, 0.06, 0.09), True),
+                                              ((0.04, 0.06, 0.08), False)])
+def test_the_probe_gives_up_by_the_crossing_share_of_the_first_iterations(shares, gives_up):
+    """The probe point averages the crossing share of iterations 1 … its point (a record past
+    it, of a training resumed beyond, does not count), and comes before the success point."""
+    settings = jump_black_box.JumpBlackBoxSettings(samples=10_000, probe_samples=300,
+                                                   probe_crossing=0.05, give_up_samples=2000)
+    box = jump_black_box.JumpBlackBox(settings, None)
+    points = box.give_up_points(100)
+    assert [iteration for iteration, _ in points] == [3, 20]
+    records = [{"iteration": i + 1, "env/episode/crossed": s} for i, s in enumerate(shares)]
+    records.append({"iteration": 4, "env/episode/crossed": 1.0})
+    why = points[0][1](records, 3)
+    assert (why == "5.0% of its first 3 iterations' episodes crossed the bar's plane (given up "
+                   "at 5% or less)") == gives_up
+    assert gives_up or why is None
+    with pytest.raises(SearchError, match="env/episode/crossed"):
+        points[0][1]([{"iteration": 1, "env/episode/success": 0.0}], 3)
+    # off at 0, and a point at or past the budget is never reached
+    assert jump_black_box.JumpBlackBox(jump_black_box.JumpBlackBoxSettings(
+        samples=300, probe_samples=300, give_up_samples=0), None).give_up_points(100) == []
 
 
 def test_the_give_up_settings_are_checked():
-    with pytest.raises(ValueError, match="give_up_success"):
-        jump_black_box.JumpBlackBoxSettings(give_up_success=1.0)
-    with pytest.raises(ValueError, match="give_up_samples"):
-        jump_black_box.JumpBlackBoxSettings(give_up_samples=-1)
+    for name in ("give_up_success", "probe_crossing"):
+        with pytest.raises(ValueError, match=name):
+            jump_black_box.JumpBlackBoxSettings(**{name: 1.0})
+    for name in ("give_up_samples", "probe_samples"):
+        with pytest.raises(ValueError, match=name):
+            jump_black_box.JumpBlackBoxSettings(**{name: -1})
 
 
 def _template(train_dir, data_dir):

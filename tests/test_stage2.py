@@ -650,9 +650,10 @@ def test_a_stage1_run_that_stopped_on_its_own_is_used_as_it_is_and_a_part_one_tr
     monkeypatch.setattr(jump_black_box, "measure",
                         lambda where, run_dir, episodes, data_dir=None, **fields:
                         {**fields, **FELL})
-    for give_up, message in ((True, "Stage-1 evaluation 0 trained again went nowhere"),
-                             (False, "Stage-1 evaluation 0 trained again does not clear the bar "
-                                     r"\(fell\)")):
+    for give_up, message in (("it never crossed", "Stage-1 evaluation 0 trained again went "
+                                                  r"nowhere \(it never crossed\)"),
+                             (None, "Stage-1 evaluation 0 trained again does not clear the bar "
+                                    r"\(fell\)")):
         gives_up[:] = [give_up]
         with pytest.raises(SearchError, match=message):
             stage2_search.run(directory, rounds=1, out=tmp_path / "out", echo=QUIET)

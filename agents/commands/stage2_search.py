@@ -256,12 +256,12 @@ def _stage1_policy(search_dir, search_config, index, data_dir, echo):
         config = config_io.build(strategy_search.SearchConfig, search_config,
                                  str(Path(search_dir) / "config.json"))
         box = strategy_search.black_box(config, search_dir, data_dir)
-        if box.train(run_dir, result["x"]):
+        why = box.train(run_dir, result["x"])
+        if why:
             raise SearchError(
-                f"{run_dir}: Stage-1 evaluation {index} trained again went nowhere (at most "
-                f"{box.settings.give_up_success:.0%} of its episodes succeeded after "
-                f"{box.settings.give_up_samples:,} samples), unlike its first training, so "
-                f"Stage 2 has no policy to start from; delete {run_dir} and {again} to try again")
+                f"{run_dir}: Stage-1 evaluation {index} trained again went nowhere ({why}), "
+                f"unlike its first training, so Stage 2 has no policy to start from; delete "
+                f"{run_dir} and {again} to try again")
         measured = jump_black_box.measure(again, run_dir, config.jump.episodes, data_dir,
                                           index=index, x=result["x"], retrained=True)
     if measured["outcome"] != "success":

@@ -6,11 +6,19 @@ One evaluation, in its own directory `<search>/evaluations/NNN/` (NNN its index 
 1. Train (`takeoff train` with the config `[jump].train`, its task's `takeoff` set to x) with the
    curriculum from z_min until the bar reaches z_freeze, or the budget (`samples`, and `minutes`
    of training when given) is spent, whichever comes first. A training that is going nowhere
-   stops early (`give_up_samples`): when, after that many samples, at most `give_up_success` of
-   its last iteration's episodes succeeded ("bad initial states will fail fast", §3.4.1); it is
-   then measured like any other and, clearing nothing, is a failure. The run directory is
-   `train/`; an evaluation killed mid-training resumes from its last checkpoint (the budget
-   counts the training minutes its metrics log already holds).
+   stops early ("bad initial states will fail fast", §3.4.1), at the first of two give-up
+   points that judges it so:
+   - `probe_samples` (off at 0): at most `probe_crossing` of the episodes of the training's
+     iterations up to there crossed the bar's plane. Those are the nearly untrained policy's
+     exploratory episodes, and in the plain-PD high-jump searches every take-off state whose
+     training succeeded had 6.6 % or more of them cross in its first 10 iterations, every one
+     that failed 3.6 % or less (docs/discovery, "Does the untrained policy foretell a
+     training's outcome?");
+   - `give_up_samples` (off at 0): at most `give_up_success` of the episodes of the iteration
+     there succeeded.
+   A training given up is then measured like any other and, clearing nothing, is a failure.
+   The run directory is `train/`; an evaluation killed mid-training resumes from its last
+   checkpoint (the budget counts the training minutes its metrics log already holds).
 2. Measure: the deterministic policy's episodes at the height the training reached; if most of
    them fail there, at z_min. The evaluation succeeds when most episodes clear the bar at one of
    the two; its feature is then the mean, over the clearing episodes, of `up_angle` (the angle
@@ -50,6 +58,8 @@ class JumpBlackBoxSettings:
     samples: int = 2_000_000                # training budget per evaluation (samples)
     minutes: float = 0.0                    # and (when > 0) training minutes
     z_freeze: float = 0.0                   # where training stops; 0: the task's own z_freeze
+    probe_samples: int = 0                  # stop a training going nowhere here (0: never) …
+    probe_crossing: float = 0.05            # … when at most this share of its episodes crossed
     give_up_samples: int = 0                # stop a training going nowhere here (0: never) …
     give_up_success: float = 0.01           # … when at most this share of its episodes succeed
     episodes: int = 4                       # deterministic evaluation episodes
@@ -57,10 +67,12 @@ class JumpBlackBoxSettings:
     def __post_init__(self):
         if self.samples < 1:
             raise ValueError(f"samples must be at least 1; got {self.samples}")
-        if self.give_up_samples < 0:
-            raise ValueError(f"give_up_samples must be ≥ 0; got {self.give_up_samples}")
-        if not 0 <= self.give_up_success < 1:
-            raise ValueError(f"give_up_success must be in [0, 1); got {self.give_up_success}")
+        for name in ("probe_samples", "give_up_samples"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be ≥ 0; got {getattr(self, name)}")
+        for name in ("probe_crossing", "give_up_success"):
+            if not 0 <= getattr(self, name) < 1:
+                raise ValueError(f"{name} must be in [0, 1); got {getattr(self, name)}")
         if self.episodes < 1:
             raise ValueError(f"episodes must be at least 1; got {self.episodes}")
         for name in ("minutes", "z_freeze"):
@@ -117,26 +129,58 @@ class JumpBlackBox:
                                   f"{done['x']}, but this search's evaluation {index} is at "
                                   f"x = {x.tolist()}; the directory belongs to another search")
             return outcome(done)
-        gave_up = self.train(directory / TRAIN, x)
-        return outcome(self._measure(directory, index, x, gave_up))
+        why = self.train(directory / TRAIN, x)
+        return outcome(self._measure(directory, index, x, why))
 
-    def train(self, run_dir: Path, x) -> bool:
-        """Train the policy of x in `run_dir` in up to two legs: to `give_up_samples`, and on to
-        `samples` unless the first leg's training is going nowhere (see the module docstring);
-        resume it from its checkpoint, or do nothing when it is finished. Returns whether it gave
-        up."""
+    def give_up_points(self, samples_per_iteration: int) -> list:
+        """(iteration, judge) of each give-up point of the module docstring that is on, in the
+        order a training reaches them; judge(records, iteration) says why a training whose
+        metrics records are `records` is given up there, or None."""
+        settings = self.settings
+        iterations = lambda samples: math.ceil(samples / samples_per_iteration)
+        points = [(iterations(samples), judge) for samples, judge in (
+            (settings.probe_samples, self._too_few_crossed),
+            (settings.give_up_samples, self._too_few_succeeded))
+            if 0 < samples < settings.samples]
+        return sorted(points, key=lambda point: point[0])
+
+    def _too_few_crossed(self, records, iteration: int) -> str | None:
+        """The `probe_samples` point's judge: the share of the episodes of iterations 1 …
+        `iteration` that crossed the bar's plane (each iteration's share, averaged)."""
+        shares = [r.get("env/episode/crossed") for r in records if r["iteration"] <= iteration]
+        if not shares or None in shares:
+            raise SearchError("the give-up point probe_samples needs each training iteration's "
+                              "env/episode/crossed, which this task's metrics do not have")
+        crossed = float(np.mean(shares))
+        if crossed > self.settings.probe_crossing:
+            return None
+        return (f"{crossed:.1%} of its first {iteration} iterations' episodes crossed the bar's "
+                f"plane (given up at {self.settings.probe_crossing:.0%} or less)")
+
+    def _too_few_succeeded(self, records, iteration: int) -> str | None:
+        """The `give_up_samples` point's judge, by the record of iteration `iteration` (also
+        when a killed search finds the training past it)."""
+        at = next((r for r in records if r["iteration"] >= iteration), records[-1])
+        if at.get("env/episode/success", 0.0) > self.settings.give_up_success:
+            return None
+        return (f"at most {self.settings.give_up_success:.0%} of the episodes succeeded after "
+                f"{self.settings.give_up_samples:,} samples")
+
+    def train(self, run_dir: Path, x) -> str | None:
+        """Train the policy of x in `run_dir` in legs that end at the give-up points and at
+        `samples`, stopping at the first point that judges the training to be going nowhere
+        (see the module docstring); resume it from its checkpoint, or do nothing when it is
+        finished. Returns why it gave up, or None."""
         from agents.commands import train_commands
         from agents.rl import trainer as trainer_lib
         settings = self.settings
         x = np.asarray(x, float)
         base = train_commands.load_config(settings.train, settings.set)
-        iterations = lambda samples: math.ceil(samples / base.run.samples_per_iteration)
-        legs = [iterations(settings.samples)]
-        if 0 < settings.give_up_samples < settings.samples:
-            legs.insert(0, iterations(settings.give_up_samples))
+        points = self.give_up_points(base.run.samples_per_iteration)
+        legs = [*points, (math.ceil(settings.samples / base.run.samples_per_iteration), None)]
         minutes_left = lambda last: settings.minutes - last.get("seconds", 0.0) / 60
         echo = _prefixed(f"  [g {run_dir.parent.name}] ")
-        for leg, leg_iterations in enumerate(legs):
+        for leg_iterations, judge in legs:
             def finished(config, last):
                 if not np.allclose(config.sections()[config.run.task]["takeoff"], x, atol=1e-6):
                     raise SearchError(f"{run_dir} trains from another take-off state than x = "
@@ -152,26 +196,18 @@ class JumpBlackBox:
             train_commands.train_or_resume(settings.train, run_dir,
                                            self._overrides(x, base, leg_iterations),
                                            self.data_dir, echo, finished, resume_overrides)
-            if leg + 1 < len(legs) and self._going_nowhere(run_dir, leg_iterations):
-                echo(f"gave up after {settings.give_up_samples:,} samples: at most "
-                     f"{settings.give_up_success:.0%} of the episodes succeed")
-                return True
-        return False
+            why = judge and judge(trainer_lib.read_metrics(run_dir), leg_iterations)
+            if why:
+                echo(f"gave up: {why}")
+                return why
+        return None
 
-    def _going_nowhere(self, run_dir, iterations: int) -> bool:
-        """Whether the training in run_dir is to be given up at the end of its first leg of
-        `iterations` (judged by that iteration's record, also when a killed search finds the
-        training past it)."""
-        from agents.rl import trainer as trainer_lib
-        records = trainer_lib.read_metrics(run_dir)
-        at = next((r for r in records if r["iteration"] >= iterations), records[-1])
-        return at.get("env/episode/success", 0.0) <= self.settings.give_up_success
-
-    def _measure(self, directory: Path, index: int, x, gave_up: bool) -> dict:
+    def _measure(self, directory: Path, index: int, x, why: str | None) -> dict:
         """Evaluate the trained policy (see the module docstring), keep its files, return its
-        result."""
+        result (`gave_up` and, when it did, `gave_up_because`)."""
+        given_up = {"gave_up": True, "gave_up_because": why} if why else {"gave_up": False}
         return measure(directory, directory / TRAIN, self.settings.episodes, self.data_dir,
-                       index=index, x=x.tolist(), gave_up=gave_up)
+                       index=index, x=x.tolist(), **given_up)
 
 
 def measure(directory: Path, run_dir: Path, episodes: int, data_dir=None, **fields) -> dict:
@@ -207,12 +243,20 @@ def measure(directory: Path, run_dir: Path, episodes: int, data_dir=None, **fiel
         result.update(outcome="failure", highest_cleared=None, feature=None, reason=(
             f"the deterministic policy cleared {int(cleared.sum())} of {cleared.size} "
             f"episodes at {height:.2f} m after {result['samples']:,} training samples "
-            f"({result['minutes']:.0f} min{', given up' if fields.get('gave_up') else ''}); "
+            f"({result['minutes']:.0f} min{_given_up(fields)}); "
             f"in its last training iteration "
             f"{100 * (result['training_success'] or 0):.1f}% of the episodes succeeded"))
     _keep_episode(directory, measured, height)
     write_text_atomic(directory / RESULT, json.dumps(result, indent=2) + "\n")
     return result
+
+
+def _given_up(fields) -> str:
+    """', given up' and why, for a failure's reason, when the training was given up."""
+    if not fields.get("gave_up"):
+        return ""
+    return f", given up: {fields['gave_up_because']}" if fields.get("gave_up_because") else \
+        ", given up"
 
 
 def _cleared(outcomes) -> np.ndarray:
