@@ -31,11 +31,13 @@ DISCOVERY = Path(__file__).resolve().parent.parent / "docs" / "discovery"
 
 def replay(directory=DISCOVERY):
     """Rows (index, kind, the pick made, its P, the pick with the model, its P)."""
-    stored = json.loads((directory / "config.json").read_text())["search"]
+    config = json.loads((directory / "config.json").read_text())
     settings = SearchSettings(**{k: tuple(v) if isinstance(v, list) else v
-                                 for k, v in stored.items()})
+                                 for k, v in config["search"].items()})
     settings = dataclasses.replace(settings, feasibility=True)
-    lower, upper = (np.array(b) for b in HIGHJUMP_BOUNDS)
+    box = config.get("box") or {}                    # the search's own box, where it has one
+    lower, upper = ((np.array(box["lower"]), np.array(box["upper"])) if box.get("lower")
+                    else (np.array(b) for b in HIGHJUMP_BOUNDS))
     records = logged_evaluations(directory / "evaluations.jsonl")
     rows = []
     for index in range(settings.initial, len(records) + 1):
