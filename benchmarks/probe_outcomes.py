@@ -2,7 +2,8 @@
 
 For each evaluation of each given strategy search, this trains the evaluation's first few PPO
 iterations again: its search's `[jump]` settings, its x, seeded as the search's training was,
-so they are the search's own first iterations where the simulator has not changed since. Over
+so they are the search's own first iterations where the simulator and the training config
+(`[jump].train`, read from disk) have not changed since. Over
 those iterations it takes each iteration's share of the episodes that succeeded, crossed the
 bar's plane and hit the bar, and the peak centre of mass, and averages them. It prints them as
 a markdown table beside the evaluation's logged outcome, sorted by the crossing share. A gap in
@@ -44,14 +45,17 @@ def probe(search_dir: Path, out: Path, iterations: int, data_dir) -> list[dict]:
     settings = dataclasses.replace(config.jump, samples=iterations * base.run.samples_per_iteration,
                                    probe_samples=0, give_up_samples=0, minutes=0.0)
     box = JumpBlackBox(settings, out, data_dir_from(data_dir))
+    actions = base.sections()[base.run.task].get("actions")
+    name = f"{search_dir.resolve().parent.name}_{search_dir.name}"    # docs/discovery/pd: discovery_pd
     rows = []
     for record in logged_evaluations(search_dir / "evaluations.jsonl"):
-        run_dir = out / f"{search_dir.name}_{record['index']:03d}"
+        run_dir = out / f"{name}_{record['index']:03d}"
         box.train(run_dir, record["x"])
         metrics = [r for r in trainer_lib.read_metrics(run_dir) if r["iteration"] <= iterations]
-        mean = lambda key: float(np.mean([r[key] for r in metrics]))
+        # an iteration in which no episode ended has no share (None)
+        mean = lambda key: float(np.mean([r[key] for r in metrics if r.get(key) is not None]))
         rows.append({"search": search_dir.name, "index": record["index"], "x": record["x"],
-                     "succeeded": record["feature"] is not None,
+                     "actions": actions, "succeeded": record["feature"] is not None,
                      **{name: mean(key) for name, key in SHARES.items()},
                      "peak_com": mean("env/episode/peak_com")})
     return rows
@@ -68,11 +72,11 @@ def main():
             for row in probe(search_dir, args.out, args.iterations, args.data_dir)]
     rows.sort(key=lambda row: -row["crossed"])
     point = lambda x: "(" + ", ".join(f"{v:.2f}" for v in x) + ")"
-    print(f"| search | evaluation | x = (α, ω_x, ω_z, v_z) | outcome | over the first "
+    print(f"| search | evaluation | x = (α, ω_x, ω_z, v_z) | actions | outcome | over the first "
           f"{args.iterations} iterations: succeeded | crossed | hit the bar | peak CoM (m) |")
-    print("|---|---:|---|---|---:|---:|---:|---:|")
+    print("|---|---:|---|---|---|---:|---:|---:|---:|")
     for row in rows:
-        print(f"| {row['search']} | {row['index']:03d} | {point(row['x'])} | "
+        print(f"| {row['search']} | {row['index']:03d} | {point(row['x'])} | {row['actions']} | "
               f"{'success' if row['succeeded'] else 'failure'} | {row['success']:.3%} | "
               f"{row['crossed']:.1%} | {row['hit the bar']:.1%} | {row['peak_com']:.3f} |")
     write_text_atomic(args.out / "probe_outcomes.json", json.dumps(rows, indent=1) + "\n")

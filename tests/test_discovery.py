@@ -1,6 +1,7 @@
 """The real black box of strategy discovery: g(x) trains a jump policy from x, end to end, with a
 failure recorded, and a search killed mid-training resumes that training from its checkpoint."""
 
+import dataclasses
 import json
 import os
 import signal
@@ -122,17 +123,57 @@ def test_the_probe_gives_up_by_the_crossing_share_of_the_first_iterations(shares
     box = jump_black_box.JumpBlackBox(settings, None)
     points = box.give_up_points(100)
     assert [iteration for iteration, _ in points] == [3, 20]
+    later = dataclasses.replace(settings, probe_samples=3000)
+    assert [judge.__name__ for _, judge in jump_black_box.JumpBlackBox(
+        later, None).give_up_points(100)] == ["_too_few_succeeded", "_too_few_crossed"]
     records = [{"iteration": i + 1, "env/episode/crossed": s} for i, s in enumerate(shares)]
     records.append({"iteration": 4, "env/episode/crossed": 1.0})
     why = points[0][1](records, 3)
     assert (why == "5.0% of its first 3 iterations' episodes crossed the bar's plane (given up "
-                   "at 5% or less)") == gives_up
+                   "at 5.0% or less)") == gives_up
     assert gives_up or why is None
+    assert points[0][1]([{"iteration": 1, "env/episode/crossed": None},   # no episode ended
+                         {"iteration": 2, "env/episode/crossed": 0.2}], 3) is None
     with pytest.raises(SearchError, match="env/episode/crossed"):
         points[0][1]([{"iteration": 1, "env/episode/success": 0.0}], 3)
     # off at 0, and a point at or past the budget is never reached
     assert jump_black_box.JumpBlackBox(jump_black_box.JumpBlackBoxSettings(
         samples=300, probe_samples=300, give_up_samples=0), None).give_up_points(100) == []
+
+
+@pytest.mark.parametrize("crossed, success, stops_at, legs, why", [
+    (0.01, 0.0, None, [3], "crossed the bar's plane"),        # given up at the probe point
+    (0.10, 0.0, None, [3, 20], "succeeded after 81,920"),     # at the success point
+    (0.10, 0.5, None, [3, 20, 50], None),                     # trained to its budget
+    (0.01, 0.0, 2, [3, 20, 50], None),                        # stopped before the probe point
+])
+def test_a_training_stops_at_the_first_give_up_point_that_judges_it_going_nowhere(
+        monkeypatch, tmp_path, crossed, success, stops_at, legs, why):
+    """`train` trains leg by leg to each give-up point and to its budget, judges the training
+    at each point it reached, and returns the first point's reason; a training that stopped
+    short of a point (at z_freeze, or out of minutes) is not judged there."""
+    from pathlib import Path
+    from agents.commands import train_commands
+    config = Path(__file__).resolve().parent.parent / "configs" / "highjump.toml"
+    settings = jump_black_box.JumpBlackBoxSettings(
+        train=str(config), samples=50 * 4096, probe_samples=3 * 4096, give_up_samples=20 * 4096)
+    records, trained = [], []
+
+    def fake_training(config_path, run_dir, overrides, *args):
+        end = next(int(o.split("=")[1]) for o in overrides if o.startswith("run.iterations="))
+        trained.append(end)
+        end = min(end, stops_at or end)
+        records.extend({"iteration": i, "env/episode/crossed": crossed,
+                        "env/episode/success": success} for i in range(len(records) + 1, end + 1))
+    monkeypatch.setattr(train_commands, "train_or_resume", fake_training)
+    monkeypatch.setattr(trainer_lib, "read_metrics", lambda run_dir: list(records))
+    box = jump_black_box.JumpBlackBox(settings, tmp_path)
+    assert [iteration for iteration, _ in box.give_up_points(4096)] == [3, 20]
+    given_up = box.train(tmp_path / "000" / "train", [1.0, 0.0, 0.0, -2.0])
+    assert trained == legs
+    assert given_up is None if why is None else why in given_up
+    fields = {"gave_up": True, "gave_up_because": given_up} if given_up else {}
+    assert jump_black_box._given_up(fields) == (f", given up: {given_up}" if given_up else "")
 
 
 def test_the_give_up_settings_are_checked():

@@ -148,14 +148,15 @@ class JumpBlackBox:
         """The `probe_samples` point's judge: the share of the episodes of iterations 1 …
         `iteration` that crossed the bar's plane (each iteration's share, averaged)."""
         shares = [r.get("env/episode/crossed") for r in records if r["iteration"] <= iteration]
-        if not shares or None in shares:
-            raise SearchError("the give-up point probe_samples needs each training iteration's "
+        shares = [share for share in shares if share is not None]   # None: no episode ended
+        if not shares:
+            raise SearchError("the give-up point probe_samples needs the training iterations' "
                               "env/episode/crossed, which this task's metrics do not have")
         crossed = float(np.mean(shares))
         if crossed > self.settings.probe_crossing:
             return None
         return (f"{crossed:.1%} of its first {iteration} iterations' episodes crossed the bar's "
-                f"plane (given up at {self.settings.probe_crossing:.0%} or less)")
+                f"plane (given up at {self.settings.probe_crossing:.1%} or less)")
 
     def _too_few_succeeded(self, records, iteration: int) -> str | None:
         """The `give_up_samples` point's judge, by the record of iteration `iteration` (also
@@ -196,7 +197,11 @@ class JumpBlackBox:
             train_commands.train_or_resume(settings.train, run_dir,
                                            self._overrides(x, base, leg_iterations),
                                            self.data_dir, echo, finished, resume_overrides)
-            why = judge and judge(trainer_lib.read_metrics(run_dir), leg_iterations)
+            records = trainer_lib.read_metrics(run_dir)
+            # a training that stopped before the point (at z_freeze, or out of minutes) is not
+            # judged there: it was not given up
+            why = (judge and records[-1]["iteration"] >= leg_iterations
+                   and judge(records, leg_iterations))
             if why:
                 echo(f"gave up: {why}")
                 return why
