@@ -15,10 +15,11 @@ The constraint's observations are the evaluations' outcomes as labels, c = +1 fo
 known is an even chance — and unit scale, but with one lengthscale for every dimension: a
 handful of binary outcomes cannot tell the dimensions apart (fitted per dimension, by the
 likelihood alone, to the high-jump search's first four outcomes, the model put all its weight
-on ω_z and gave the next pick, which failed, P = 1.00). Then P[c(x) > 0] = Φ(μ_c(x) / σ_c(x)), with σ_c the latent
-posterior standard deviation: near a success it tends to 1, near a failure to 0, and far from
-every evaluation to ½. GP regression on labels is the least-squares classifier of Rasmussen &
-Williams (2006, §6.5); it needs no approximate inference and reuses the feature GP's code.
+on ω_z and gave the next pick, which failed, P = 1.00). Then P[c(x) > 0] = Φ(μ_c(x) / σ_c(x)),
+with σ_c the latent posterior standard deviation: near a success it tends to 1, near a failure
+to 0, and far from every evaluation to ½. GP regression on labels is the least-squares
+classifier of Rasmussen & Williams (2006, §6.5); it needs no approximate inference and reuses
+the feature GP's code.
 
 Its hyperparameters are fitted under `bds.gp`'s weak priors (`hyperprior`), not by the marginal
 likelihood alone. With one success and four failures in 4-D (the narrower-box high-jump search,

@@ -16,28 +16,25 @@ its marginal likelihood alone (not under priors, as now), they need not.
 """
 
 import dataclasses
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from agents.tasks.takeoff_state import HIGHJUMP_BOUNDS
+from agents import config as config_io
+from agents.commands.strategy_search import SearchConfig
 from bds import feasibility, gp
-from bds.search import SearchSettings, logged_evaluations, plan_round, success_model
+from bds.search import logged_evaluations, plan_round, success_model
 
 DISCOVERY = Path(__file__).resolve().parent.parent / "docs" / "discovery"
 
 
 def replay(directory=DISCOVERY):
     """Rows (index, kind, the pick made, its P, the pick with the model, its P)."""
-    config = json.loads((directory / "config.json").read_text())
-    settings = SearchSettings(**{k: tuple(v) if isinstance(v, list) else v
-                                 for k, v in config["search"].items()})
-    settings = dataclasses.replace(settings, feasibility=True)
-    box = config.get("box") or {}                    # the search's own box, where it has one
-    lower, upper = ((np.array(box["lower"]), np.array(box["upper"])) if box.get("lower")
-                    else (np.array(b) for b in HIGHJUMP_BOUNDS))
+    path = directory / "config.json"
+    config = config_io.build(SearchConfig, config_io.read_stored(path), str(path))
+    settings = dataclasses.replace(config.search, feasibility=True)
+    lower, upper = config.bounds()                   # the search's own box
     records = logged_evaluations(directory / "evaluations.jsonl")
     rows = []
     for index in range(settings.initial, len(records) + 1):

@@ -3,9 +3,9 @@
 For each evaluation of each given strategy search, this trains the evaluation's first few PPO
 iterations again: its search's `[jump]` settings, its x, seeded as the search's training was,
 so they are the search's own first iterations where the simulator and the training config
-(`[jump].train`, read from disk) have not changed since. Over
-those iterations it takes each iteration's share of the episodes that succeeded, crossed the
-bar's plane and hit the bar, and the peak centre of mass, and averages them. It prints them as
+(`[jump].train`, read from disk) have not changed since. Over those iterations it takes each
+iteration's share of the episodes that succeeded, crossed the bar's plane and hit the bar, and
+the peak centre of mass, and averages them. It prints them as
 a markdown table beside the evaluation's logged outcome, sorted by the crossing share. A gap in
 that share between every success and every failure is what the black box's probe give-up point
 (`agents/discovery/jump_black_box.py`) relies on.
@@ -46,10 +46,10 @@ def probe(search_dir: Path, out: Path, iterations: int, data_dir) -> list[dict]:
                                    probe_samples=0, give_up_samples=0, minutes=0.0)
     box = JumpBlackBox(settings, out, data_dir_from(data_dir))
     actions = base.sections()[base.run.task].get("actions")
-    name = f"{search_dir.resolve().parent.name}_{search_dir.name}"    # docs/discovery/pd: discovery_pd
+    prefix = f"{search_dir.resolve().parent.name}_{search_dir.name}"   # e.g. discovery_pd
     rows = []
     for record in logged_evaluations(search_dir / "evaluations.jsonl"):
-        run_dir = out / f"{name}_{record['index']:03d}"
+        run_dir = out / f"{prefix}_{record['index']:03d}"
         box.train(run_dir, record["x"])
         metrics = [r for r in trainer_lib.read_metrics(run_dir) if r["iteration"] <= iterations]
         # an iteration in which no episode ended has no share (None)
