@@ -553,8 +553,10 @@ def _feature(value, index, x):
 @dataclass(frozen=True, eq=False)
 class _Evaluation:
     """One evaluation of the black box g at a point of the unit box, as a job for an executor:
-    its log record (index, kind, x in the box [lower, upper], feature, seconds). Picklable when
-    g is, so worker processes can run it."""
+    its log record (index, kind, x in the box [lower, upper], feature, seconds). `seconds` is the
+    wall time of the call that finished it: an evaluation resumed after a kill counts only its
+    last leg (a black box's own records, such as a training's metrics, hold the total).
+    Picklable when g is, so worker processes can run it."""
     g: Callable
     lower: np.ndarray
     upper: np.ndarray
