@@ -201,6 +201,7 @@ def test_strategies_are_grouped_as_bds_strategies_groups(search_dir, written):
         assert (f"strategy {label}</span>" in card) == (label >= 0)
     assert "href='#eval-001'>001</a>)" in _card(page, "eval-003")   # the same as 001
     assert "2 distinct strategies" in page
+    assert "5 evaluations (3 successes, 1 failure, 1 in progress)" in page
     summary = re.search(r"<table class='summary'>(.*?)</table>", page, re.S).group(1)
     assert summary.count("<tr>") == 3                     # a header and two strategies
     assert "1.10 m" in summary                            # strategy 0's best is 003's bar
