@@ -739,8 +739,8 @@ def _section_html(section: Section) -> str:
             members.setdefault(evaluation.strategy, []).append(evaluation)
     counts = {status: sum(ev.status == status for ev in section.evaluations)
               for status in ("success", "failure", "in progress", "waiting")}
-    plurals = {"success": "successes", "failure": "failures"}
-    tally = ", ".join(f"{n} {plurals.get(status, status) if n != 1 else status}"
+    plural = {"success": "successes", "failure": "failures"}   # "in progress", "waiting" stay
+    tally = ", ".join(f"{n} {status if n == 1 else plural.get(status, status)}"
                       for status, n in counts.items() if n)
     degrees = (f" ({math.degrees(section.threshold):.0f}°)"
                if section.distance != "euclidean" or section.task else "")
