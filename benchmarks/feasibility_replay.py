@@ -21,8 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import config as config_io
-from agents.commands.strategy_search import SearchConfig
+from agents.commands.strategy_search import load_search_config
 from bds import feasibility, gp
 from bds.search import logged_evaluations, plan_round, success_model
 
@@ -31,8 +30,7 @@ DISCOVERY = Path(__file__).resolve().parent.parent / "docs" / "discovery"
 
 def replay(directory=DISCOVERY):
     """Rows (index, kind, the pick made, its P, the pick with the model, its P)."""
-    path = directory / "config.json"
-    config = config_io.build(SearchConfig, config_io.read_stored(path), str(path))
+    config = load_search_config(directory)
     settings = dataclasses.replace(config.search, feasibility=True)
     lower, upper = config.bounds()                   # the search's own box
     records = logged_evaluations(directory / "evaluations.jsonl")

@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import config as config_io
 from agents.commands import strategy_search, train_commands
 from agents.datadir import data_dir_from
 from agents.discovery.jump_black_box import JumpBlackBox
@@ -39,8 +38,7 @@ SHARES = {"success": "env/episode/success", "crossed": "env/episode/crossed",
 def probe(search_dir: Path, out: Path, iterations: int, data_dir) -> list[dict]:
     """One row per logged evaluation of the search in `search_dir`: its index, x, outcome and
     the averages over its first `iterations` training iterations (trained in `out`)."""
-    stored = config_io.read_stored(search_dir / "config.json")
-    config = config_io.build(strategy_search.SearchConfig, stored, str(search_dir / "config.json"))
+    config = strategy_search.load_search_config(search_dir)
     base = train_commands.load_config(config.jump.train, config.jump.set)
     settings = dataclasses.replace(config.jump, samples=iterations * base.run.samples_per_iteration,
                                    probe_samples=0, give_up_samples=0, minutes=0.0)

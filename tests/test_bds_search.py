@@ -10,7 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from agents.commands import strategy_search
 from agents.commands.cli import main
+from agents.config import ConfigError
 from jaxsim.atomic import hold_directory
 from jaxsim.executor import LocalProcesses
 from bds.landscapes import LandscapeSettings, StrategyLandscape
@@ -427,6 +429,11 @@ large = 1
                             "--set", "search.budget=8"], capsys)
     assert code == 0
     assert "resuming from" in out and "[  7/8]" in out and "[  6/8]" not in out
+    # The stored config reads back as the search ran it (the resumed budget included).
+    stored = strategy_search.load_search_config(out_dir)
+    assert stored.search.budget == 8 and stored.landscape.strategies == 4
+    with pytest.raises(ConfigError, match=re.escape(f"{tmp_path / 'config.json'}: missing")):
+        strategy_search.load_search_config(tmp_path)
 
 
 def test_a_search_another_process_holds_is_refused_before_it_writes(tmp_path, capsys):

@@ -145,6 +145,14 @@ class LandscapeBlackBox:
         return int(self.landscape.label(to_unit(np.asarray(x), self.lower, self.upper)))
 
 
+def load_search_config(search_dir) -> SearchConfig:
+    """The config a search directory stored (its config.json), checked as `run` checks one."""
+    path = Path(search_dir) / "config.json"
+    if not path.exists():
+        raise config_io.ConfigError(f"{path}: missing; is {search_dir} a search directory?")
+    return config_io.build(SearchConfig, config_io.read_stored(path), str(path))
+
+
 def black_box(config: SearchConfig, out_dir=None, data_dir=None):
     """g(x) for the configured black box; a landscape's also has `label(x)`, the strategy of a
     point."""

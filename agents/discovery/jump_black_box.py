@@ -137,8 +137,7 @@ class JumpBlackBox:
         order a training reaches them; judge(records, iteration) says why a training whose
         metrics records are `records` is given up there, or None."""
         settings = self.settings
-        iterations = lambda samples: math.ceil(samples / samples_per_iteration)
-        points = [(iterations(samples), judge) for samples, judge in (
+        points = [(_iterations(samples, samples_per_iteration), judge) for samples, judge in (
             (settings.probe_samples, self._too_few_crossed),
             (settings.give_up_samples, self._too_few_succeeded))
             if 0 < samples < settings.samples]
@@ -178,7 +177,7 @@ class JumpBlackBox:
         x = np.asarray(x, float)
         base = train_commands.load_config(settings.train, settings.set)
         points = self.give_up_points(base.run.samples_per_iteration)
-        legs = [*points, (math.ceil(settings.samples / base.run.samples_per_iteration), None)]
+        legs = [*points, (_iterations(settings.samples, base.run.samples_per_iteration), None)]
         minutes_left = lambda last: settings.minutes - last.get("seconds", 0.0) / 60
         echo = _prefixed(f"  [g {run_dir.parent.name}] ")
         for leg_iterations, judge in legs:
@@ -260,8 +259,13 @@ def _given_up(fields) -> str:
     """', given up' and why, for a failure's reason, when the training was given up."""
     if not fields.get("gave_up"):
         return ""
-    return f", given up: {fields['gave_up_because']}" if fields.get("gave_up_because") else \
-        ", given up"
+    because = fields.get("gave_up_because")
+    return f", given up: {because}" if because else ", given up"
+
+
+def _iterations(samples: int, samples_per_iteration: int) -> int:
+    """The training iterations that `samples` take (the last one may run past them)."""
+    return math.ceil(samples / samples_per_iteration)
 
 
 def _cleared(outcomes) -> np.ndarray:
