@@ -1,0 +1,111 @@
+"""What does our jump training learn from the thesis's own take-off states? (Table 3.3 / 3.4)
+
+Evaluates each row of `HIGHJUMP_ROWS` (or `OBSTACLE_ROWS`) with the jump black box of a strategy
+search's config, exactly as that search would evaluate the point: the same training, give-up
+points, z_freeze and measurement. Each row is an evaluation directory `OUT/evaluations/NNN/`
+(NNN its place in the order given), so a killed run resumes its row's training from its last
+checkpoint, and a row whose result.json exists is read, not trained again. It then prints a
+markdown table of the rows' outcomes and groups the successes by the search's strategy rule
+(`bds.strategies`, π/6 of the up angle), in the order given.
+
+If the rows give as many strategies as the thesis names, our training can produce them and
+what a search finds depends on where it looks; if not, no search over the box will.
+
+Run:  python benchmarks/thesis_rows.py SEARCH_CONFIG --out runs/thesis_rows \
+          [--rows western_roll side_jump ...] [--set jump.probe_samples=40960 ...] \
+          [--data-dir ../shared/data]
+
+SEARCH_CONFIG is a search's TOML (configs/highjump_bds.toml) or a search directory holding its
+config.json (docs/discovery/pd); `--set` overrides the TOML's keys. A row takes what a search's
+evaluation takes: about a minute given up at the probe, 25 minutes at the 2 M-sample give-up
+point, 65–85 minutes to a bar of 1.0 m on 2 cores.
+"""
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+
+from agents import config as config_io
+from agents.commands import strategy_search
+from agents.discovery.jump_black_box import JumpBlackBox, evaluation_dir, read_result
+from agents.rl import parallel
+from agents.tasks.takeoff_state import HIGHJUMP_ROWS, OBSTACLE_ROWS
+from bds import strategies
+from jaxsim.atomic import write_text_atomic
+
+ROWS = {"highjump": HIGHJUMP_ROWS, "obstacle": OBSTACLE_ROWS}
+
+
+def load_config(source: Path, overrides) -> strategy_search.SearchConfig:
+    """The search config of a TOML file (with `overrides`) or of a search directory."""
+    if source.is_dir():
+        if overrides:
+            raise SystemExit(f"--set applies to a TOML config; {source} is a search directory")
+        return strategy_search.load_search_config(source)
+    return config_io.load(source, strategy_search.SearchConfig, overrides)
+
+
+def evaluate_rows(config, names, out: Path, data_dir) -> list[dict]:
+    """Each named row's result.json, evaluated (or read back) in `out`."""
+    if config.black_box != "jump":
+        raise SystemExit(f"the config's black box is {config.black_box!r}; this needs 'jump'")
+    rows = ROWS[config.task()]
+    unknown = [name for name in names if name not in rows]
+    if unknown:
+        raise SystemExit(f"no such {config.task()} row: {', '.join(unknown)}; the rows are "
+                         f"{', '.join(rows)}")
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "rows.json", json.dumps(
+        {"config": dataclasses.asdict(config), "rows": list(names)},
+        indent=2) + "\n")
+    box = JumpBlackBox(config.jump, out, data_dir)
+    results = []
+    for index, name in enumerate(names):
+        box.evaluate(index, rows[name])
+        results.append({"row": name, **read_result(evaluation_dir(out, index))})
+    return results
+
+
+def table(results, threshold: float) -> str:
+    """The rows' outcomes as a markdown table, with each success's strategy by the π/6 rule."""
+    features = [[r["feature"]["up_angle"]] if r["feature"] else None for r in results]
+    labels = strategies.group(features, threshold)
+    lines = ["| row | x = (α, ω_x, ω_z, v_z) | outcome | bar | up angle | strategy | samples "
+             "| minutes |", "|---|---|---|---:|---:|---:|---:|---:|"]
+    for result, label in zip(results, labels):
+        x = ", ".join(f"{v:.2f}" for v in result["x"])
+        if result["feature"]:
+            up = result["feature"]["up_angle"]
+            cells = [f"{result['highest_cleared']:.2f} m", f"{np.degrees(up):.0f}°", str(label)]
+        else:
+            cells = ["—", "—", "—"]
+        lines.append(f"| {result['row']} | ({x}) | {result['outcome']} | " + " | ".join(cells)
+                     + f" | {result['samples']:,} | {result['minutes']:.0f} |")
+    found = len({label for label in labels if label >= 0})
+    lines.append(f"\n{found} strategies (π/6 rule on the up angle) from {len(results)} rows.")
+    return "\n".join(lines)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("config", type=Path, help="a search TOML or a search directory")
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--rows", nargs="+", help="row names, in order (default: all)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE")
+    parser.add_argument("--data-dir")
+    args = parser.parse_args()
+    config = load_config(args.config, args.overrides)
+    from agents.commands import train_commands
+    from agents.datadir import data_dir_from
+    parallel.start(train_commands.load_config(config.jump.train, config.jump.set).run.devices)
+    names = args.rows or list(ROWS[config.task()])
+    results = evaluate_rows(config, names, args.out, data_dir_from(args.data_dir))
+    print(table(results, config.strategy_threshold()))
+
+
+if __name__ == "__main__":
+    main()
