@@ -58,9 +58,12 @@ def evaluate_rows(config, names, out: Path, data_dir) -> list[dict]:
         raise SystemExit(f"no such {config.task()} row: {', '.join(unknown)}; the rows are "
                          f"{', '.join(rows)}")
     out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / "rows.json", json.dumps(
-        {"config": dataclasses.asdict(config), "rows": list(names)},
-        indent=2) + "\n")
+    stored = json.loads(json.dumps(dataclasses.asdict(config)))
+    path = out / "rows.json"
+    if path.exists() and json.loads(path.read_text())["config"] != stored:
+        raise SystemExit(f"{path}: {out} holds rows evaluated with another search config; use "
+                         "the same config or another --out")
+    write_text_atomic(path, json.dumps({"config": stored, "rows": list(names)}, indent=2) + "\n")
     box = JumpBlackBox(config.jump, out, data_dir)
     results = []
     for index, name in enumerate(names):
