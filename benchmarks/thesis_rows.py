@@ -32,11 +32,13 @@ from agents import config as config_io
 from agents.commands import strategy_search
 from agents.discovery.jump_black_box import JumpBlackBox, evaluation_dir, read_result
 from agents.rl import parallel
-from agents.tasks.takeoff_state import HIGHJUMP_ROWS, OBSTACLE_ROWS
+from agents.tasks.takeoff_state import (HIGHJUMP_FEATURES, HIGHJUMP_ROWS, OBSTACLE_FEATURES,
+                                        OBSTACLE_ROWS)
 from bds import strategies
 from jaxsim.atomic import write_text_atomic
 
 ROWS = {"highjump": HIGHJUMP_ROWS, "obstacle": OBSTACLE_ROWS}
+FEATURES = {"highjump": HIGHJUMP_FEATURES, "obstacle": OBSTACLE_FEATURES}
 
 
 def load_config(source: Path, overrides) -> strategy_search.SearchConfig:
@@ -72,12 +74,12 @@ def evaluate_rows(config, names, out: Path, data_dir) -> list[dict]:
     return results
 
 
-def table(results, threshold: float) -> str:
+def table(results, threshold: float, task: str) -> str:
     """The rows' outcomes as a markdown table, with each success's strategy by the π/6 rule."""
     features = [[r["feature"]["up_angle"]] if r["feature"] else None for r in results]
     labels = strategies.group(features, threshold)
-    lines = ["| row | x = (α, ω_x, ω_z, v_z) | outcome | bar | up angle | strategy | samples "
-             "| minutes |", "|---|---|---|---:|---:|---:|---:|---:|"]
+    lines = [f"| row | x = ({', '.join(FEATURES[task])}) | outcome | bar | up angle | strategy "
+             "| samples | minutes |", "|---|---|---|---:|---:|---:|---:|---:|"]
     for result, label in zip(results, labels):
         x = ", ".join(f"{v:.2f}" for v in result["x"])
         if result["feature"]:
@@ -88,7 +90,8 @@ def table(results, threshold: float) -> str:
         lines.append(f"| {result['row']} | ({x}) | {result['outcome']} | " + " | ".join(cells)
                      + f" | {result['samples']:,} | {result['minutes']:.0f} |")
     found = len({label for label in labels if label >= 0})
-    lines.append(f"\n{found} strategies (π/6 rule on the up angle) from {len(results)} rows.")
+    lines.append(f"\n{found} {'strategy' if found == 1 else 'strategies'} (π/6 rule on the up "
+                 f"angle) from {len(results)} rows.")
     return "\n".join(lines)
 
 
@@ -107,7 +110,7 @@ def main():
     parallel.start(train_commands.load_config(config.jump.train, config.jump.set).run.devices)
     names = args.rows or list(ROWS[config.task()])
     results = evaluate_rows(config, names, args.out, data_dir_from(args.data_dir))
-    print(table(results, config.strategy_threshold()))
+    print(table(results, config.strategy_threshold(), config.task()))
 
 
 if __name__ == "__main__":
