@@ -6,10 +6,12 @@ points, z_freeze and measurement. Each row is an evaluation directory `OUT/evalu
 (NNN its place in the order given), so a killed run resumes its row's training from its last
 checkpoint, and a row whose result.json exists is read, not trained again. It then prints a
 markdown table of the rows' outcomes and groups the successes by the search's strategy rule
-(`bds.strategies`, π/6 of the up angle), in the order given.
+(`bds.strategies`; π/6 of the up angle unless the config's same_strategy says otherwise), in the
+order given.
 
-If the rows give as many strategies as the thesis names, our training can produce them and
-what a search finds depends on where it looks; if not, no search over the box will.
+If the rows give as many strategies as the thesis names, our training can produce them, and
+what a search finds depends on where it looks; if they give fewer, the training is the likelier
+limit (other points of the box may still give what the rows do not).
 
 Run:  python benchmarks/thesis_rows.py SEARCH_CONFIG --out runs/thesis_rows \
           [--rows western_roll side_jump ...] [--set jump.probe_samples=40960 ...] \
@@ -29,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from agents import config as config_io
-from agents.commands import strategy_search
+from agents.commands import strategy_search, train_commands
+from agents.datadir import data_dir_from
 from agents.discovery.jump_black_box import JumpBlackBox, evaluation_dir, read_result
 from agents.rl import parallel
 from agents.tasks.takeoff_state import (HIGHJUMP_FEATURES, HIGHJUMP_ROWS, OBSTACLE_FEATURES,
@@ -105,8 +108,6 @@ def main():
     parser.add_argument("--data-dir")
     args = parser.parse_args()
     config = load_config(args.config, args.overrides)
-    from agents.commands import train_commands
-    from agents.datadir import data_dir_from
     parallel.start(train_commands.load_config(config.jump.train, config.jump.set).run.devices)
     names = args.rows or list(ROWS[config.task()])
     results = evaluate_rows(config, names, args.out, data_dir_from(args.data_dir))
