@@ -2,9 +2,11 @@
 
 Evaluates each row of `HIGHJUMP_ROWS` (or `OBSTACLE_ROWS`) with the jump black box of a strategy
 search's config, exactly as that search would evaluate the point: the same training, give-up
-points, z_freeze and measurement. Each row is an evaluation directory `OUT/evaluations/NNN/`
-(NNN its place in the order given), so a killed run resumes its row's training from its last
-checkpoint, and a row whose result.json exists is read, not trained again. It then prints a
+points, z_freeze and measurement. OUT is laid out as a search directory: `config.json` (a
+rerun may change only what a resumed search may, `strategy_search.check_resumable`), and each
+row an evaluation directory `OUT/evaluations/NNN/` (NNN its place in the order given), so a
+killed run resumes its row's training from its last checkpoint, and a row whose result.json
+exists is read, not trained again (a row in another place is refused: the black box checks x). It then prints a
 markdown table of the rows' outcomes and groups the successes by the search's strategy rule
 (`bds.strategies`; π/6 of the up angle unless the config's same_strategy says otherwise), in the
 order given.
@@ -24,7 +26,6 @@ point, 65–85 minutes to a bar of 1.0 m on 2 cores.
 """
 
 import argparse
-import dataclasses
 import json
 from pathlib import Path
 
@@ -63,12 +64,10 @@ def evaluate_rows(config, names, out: Path, data_dir) -> list[dict]:
         raise SystemExit(f"no such {config.task()} row: {', '.join(unknown)}; the rows are "
                          f"{', '.join(rows)}")
     out.mkdir(parents=True, exist_ok=True)
-    stored = json.loads(json.dumps(dataclasses.asdict(config)))
-    path = out / "rows.json"
-    if path.exists() and json.loads(path.read_text())["config"] != stored:
-        raise SystemExit(f"{path}: {out} holds rows evaluated with another search config; use "
-                         "the same config or another --out")
-    write_text_atomic(path, json.dumps({"config": stored, "rows": list(names)}, indent=2) + "\n")
+    text = strategy_search.config_text(config)
+    if (out / "config.json").exists():        # rows evaluated before: as a search resumes
+        strategy_search.check_resumable(out, json.loads(text))
+    write_text_atomic(out / "config.json", text)
     box = JumpBlackBox(config.jump, out, data_dir)
     results = []
     for index, name in enumerate(names):
@@ -77,10 +76,12 @@ def evaluate_rows(config, names, out: Path, data_dir) -> list[dict]:
     return results
 
 
-def table(results, threshold: float, task: str) -> str:
-    """The rows' outcomes as a markdown table, with each success's strategy by the π/6 rule."""
+def table(results, config) -> str:
+    """The rows' outcomes as a markdown table, with each success's strategy by the search's
+    same-strategy rule (`bds.strategies`, as the search's summary groups them)."""
+    threshold, task = config.strategy_threshold(), config.task()
     features = [[r["feature"]["up_angle"]] if r["feature"] else None for r in results]
-    labels = strategies.group(features, threshold)
+    labels = strategies.group(features, threshold, config.search.distance)
     lines = [f"| row | x = ({', '.join(FEATURES[task])}) | outcome | bar | up angle | strategy "
              "| samples | minutes |", "|---|---|---|---:|---:|---:|---:|---:|"]
     for result, label in zip(results, labels):
@@ -93,8 +94,8 @@ def table(results, threshold: float, task: str) -> str:
         lines.append(f"| {result['row']} | ({x}) | {result['outcome']} | " + " | ".join(cells)
                      + f" | {result['samples']:,} | {result['minutes']:.0f} |")
     found = len({label for label in labels if label >= 0})
-    lines.append(f"\n{found} {'strategy' if found == 1 else 'strategies'} (π/6 rule on the up "
-                 f"angle) from {len(results)} rows.")
+    lines.append(f"\n{found} {'strategy' if found == 1 else 'strategies'} (features within "
+                 f"{np.degrees(threshold):.0f}° are one) from {len(results)} rows.")
     return "\n".join(lines)
 
 
@@ -111,7 +112,7 @@ def main():
     parallel.start(train_commands.load_config(config.jump.train, config.jump.set).run.devices)
     names = args.rows or list(ROWS[config.task()])
     results = evaluate_rows(config, names, args.out, data_dir_from(args.data_dir))
-    print(table(results, config.strategy_threshold(), config.task()))
+    print(table(results, config))
 
 
 if __name__ == "__main__":

@@ -176,7 +176,12 @@ def _flat(tree, prefix=""):
     return flat
 
 
-def _check_resumable(out_dir, resolved):
+def config_text(config: SearchConfig) -> str:
+    """The config as a search directory stores it (its config.json)."""
+    return json.dumps(dataclasses.asdict(config), indent=2) + "\n"
+
+
+def check_resumable(out_dir, resolved):
     """Raise a ConfigError naming the first key, other than those in RESUMABLE, in which the
     resolved config (as config.json holds it) differs from the run's config.json. A key the
     stored file lacks (written before that setting existed) is taken to have its default."""
@@ -205,9 +210,9 @@ def run(config_path, out_dir=None, overrides=(), workers=None, echo=print, data_
     config = config_io.load(config_path, SearchConfig, overrides)
     out_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
     log = out_dir / "evaluations.jsonl"
-    text = json.dumps(dataclasses.asdict(config), indent=2) + "\n"
+    text = config_text(config)
     if log.exists():
-        _check_resumable(out_dir, json.loads(text))
+        check_resumable(out_dir, json.loads(text))
     check_writable(out_dir, what="the search's log")
     with hold_directory(out_dir, "the search"):
         return _run_held(config, out_dir, text, echo, data_dir)
