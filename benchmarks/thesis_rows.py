@@ -6,10 +6,10 @@ points, z_freeze and measurement. OUT is laid out as a search directory: `config
 rerun may change only what a resumed search may, `strategy_search.check_resumable`), and each
 row an evaluation directory `OUT/evaluations/NNN/` (NNN its place in the order given), so a
 killed run resumes its row's training from its last checkpoint, and a row whose result.json
-exists is read, not trained again (a row in another place is refused: the black box checks x). It then prints a
-markdown table of the rows' outcomes and groups the successes by the search's strategy rule
-(`bds.strategies`; π/6 of the up angle unless the config's same_strategy says otherwise), in the
-order given.
+exists is read, not trained again (a row in another place is refused: the black box checks x).
+It then prints a markdown table of the rows' outcomes and groups the successes by the search's
+strategy rule (`bds.strategies`; π/6 of the up angle unless the config's same_strategy says
+otherwise), in the order given.
 
 If the rows give as many strategies as the thesis names, our training can produce them, and
 what a search finds depends on where it looks; if they give fewer, the training is the likelier
@@ -34,11 +34,12 @@ import numpy as np
 from agents import config as config_io
 from agents.commands import strategy_search, train_commands
 from agents.datadir import data_dir_from
-from agents.discovery.jump_black_box import JumpBlackBox, evaluation_dir, read_result
+from agents.discovery.jump_black_box import JumpBlackBox, evaluation_dir, outcome, read_result
 from agents.rl import parallel
 from agents.tasks.takeoff_state import (HIGHJUMP_FEATURES, HIGHJUMP_ROWS, OBSTACLE_FEATURES,
                                         OBSTACLE_ROWS)
 from bds import strategies
+from bds.search import Failure
 from jaxsim.atomic import write_text_atomic
 
 ROWS = {"highjump": HIGHJUMP_ROWS, "obstacle": OBSTACLE_ROWS}
@@ -80,7 +81,7 @@ def table(results, config) -> str:
     """The rows' outcomes as a markdown table, with each success's strategy by the search's
     same-strategy rule (`bds.strategies`, as the search's summary groups them)."""
     threshold, task = config.strategy_threshold(), config.task()
-    features = [[r["feature"]["up_angle"]] if r["feature"] else None for r in results]
+    features = [None if isinstance(g, Failure) else g for g in map(outcome, results)]
     labels = strategies.group(features, threshold, config.search.distance)
     lines = [f"| row | x = ({', '.join(FEATURES[task])}) | outcome | bar | up angle | strategy "
              "| samples | minutes |", "|---|---|---|---:|---:|---:|---:|---:|"]
