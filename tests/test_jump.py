@@ -308,6 +308,40 @@ def test_the_bar_turns_with_the_approach_angle_about_the_takeoff_point(highjump)
     assert float(world.friction[highjump.world.object_index("block")]) == 0.4
 
 
+def test_bar_time_puts_the_bar_where_the_takeoff_velocity_carries_the_root(data_dir):
+    env = jump.JumpEnv(jump.HighJumpSettings(actions="pd", bar_time=0.42), data_dir,
+                       dtype=jnp.float64)
+    distances = []
+    for x in ((1.65, 1.00, 0.88, -2.21),        # the straddle row: straight at the bar
+              (-0.05, -3.00, 1.00, -2.40),      # the flop row: sideways
+              (0.45, 1.00, -0.26, -0.52),       # the front-kick row: 0.59 m, under the least
+              (-0.52, 1.00, -1.00, -0.50)):     # moving away from the bar
+        params = {**env.default_params(), "takeoff": jnp.asarray(x)}
+        state = env.reset(params, jax.random.PRNGKey(0))
+        _, velocity = takeoff_state.facing_velocities(state.physics.q, state.physics.qd)
+        alpha = x[0]
+        speed = float(np.dot(velocity, [np.sin(alpha), 0.0, -np.cos(alpha)]))
+        expected = max(0.42 * speed, jump.MIN_BAR_DISTANCE)
+        normal, origin, far, cross, *_ = env.geometry(state.task)
+        (bar, block), (_, block_half) = (env.world_for(state.task).box_center,
+                                         env.world_for(state.task).box_half_size)
+        assert float(jnp.dot(bar - origin, normal)) == pytest.approx(expected, abs=1e-9)
+        assert float(cross) == float(far) == pytest.approx(expected, abs=1e-9)
+        assert float(jnp.dot(block - origin, normal) - block_half[0]) == pytest.approx(
+            expected + 0.02)
+        distances.append(float(cross))
+    assert distances[0] == pytest.approx(0.83, abs=0.01)
+    assert distances[1] == pytest.approx(0.96, abs=0.01)
+    assert distances[2] == distances[3] == jump.MIN_BAR_DISTANCE
+
+
+@pytest.mark.parametrize("key, value", [("bar_distance", 0.3), ("bar_time", -0.1),
+                                        ("bar_time", 5.0)])
+def test_a_bar_placement_out_of_range_is_an_error_naming_its_key(key, value):
+    with pytest.raises(ValueError, match=key):
+        jump.HighJumpSettings(**{key: value})
+
+
 def test_the_obstacle_stands_ahead_of_the_takeoff_point_with_the_block_past_it(obstacle):
     params = {**obstacle.default_params(), "difficulty": jnp.asarray(0.3)}
     task = obstacle.reset(params, jax.random.PRNGKey(0)).task

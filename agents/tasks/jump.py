@@ -5,9 +5,11 @@ run under stable-PD control at 600 Hz; the policy acts at the control rate of th
 
 World (all in the facing frame at take-off, turned by α for the high jump; `jump_geometry`):
   high jump  the bar: during training a rigid wall from the ground to the bar height z, its
-             plane 1.2 m from the take-off point along its normal n(α); the landing block:
-             4 m deep and 6 m wide, its centre 2.02 m past the bar plane (its near face 2 cm
-             behind it), height clip(z − 0.7, 0.02, 0.75) m, friction 0.4.
+             plane `bar_distance` (1.2 m) from the take-off point along its normal n(α), or
+             with `bar_time` where the take-off velocity carries the root in that time
+             (`bar_plane_distance`); the landing block: 4 m deep and 6 m wide, its centre
+             2.02 m past the bar plane (its near face 2 cm behind it), height
+             clip(z − 0.7, 0.02, 0.75) m, friction 0.4.
   obstacle   a box 0.5 m high and z wide (along the approach), its near face 0.7 m ahead of
              the take-off point (`OBSTACLE_DISTANCE`); a landing block of the same kind 2 cm
              past its far face, its height the rule above for a 0.5 m bar (2 cm).
@@ -78,6 +80,9 @@ from jaxsim.world import Box, make_world
 
 KINDS = ("highjump", "obstacle")
 BAR_DISTANCE = 1.2          # m, take-off point to the bar plane (the release's)
+# m, the least bar distance of `bar_time`: the take-off pose's link origins reach at most 0.39 m
+# along n(α) (α ∈ [−0.6, 2.1]), so 0.6 m keeps the bar about 0.2 m clear of their shapes.
+MIN_BAR_DISTANCE = 0.6
 # m, take-off point to the obstacle's near face. Neither the thesis nor the issue gives it. The
 # box-jump run at its take-off frame (1.5 s) has its take-off knee 0.27 m ahead at 0.34 m height;
 # its own flight lifts its lowest point above 0.5 m 0.24 s later, its rearmost link then 0.1 m
@@ -166,7 +171,19 @@ class JumpSettings:
 @dataclass(frozen=True)
 class HighJumpSettings(JumpSettings):
     clip: str = "VC5_sprint__curves_03.txt"
+    bar_distance: float = BAR_DISTANCE       # m, take-off point to the bar plane along n(α)
+    bar_time: float = 0.0                    # s; > 0: the bar plane where the take-off velocity
+    #                                          carries the root in this time (`bar_plane_distance`)
     KIND = "highjump"
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.bar_distance < MIN_BAR_DISTANCE:
+            raise ValueError(f"bar_distance must be at least {MIN_BAR_DISTANCE} m (the take-off "
+                             f"pose reaches 0.39 m towards the bar); got {self.bar_distance}")
+        if not 0.0 <= self.bar_time <= 2.0:
+            raise ValueError(f"bar_time must be in [0, 2] s (0: bar_distance); got "
+                             f"{self.bar_time}")
 
 
 @dataclass(frozen=True)
@@ -228,15 +245,34 @@ class JumpCurriculum:
                 "c_offset": offset_coefficient(self.kind, state["difficulty"])}
 
 
-def jump_geometry(kind, origin, heading, alpha, z, dtype):
+def bar_normal(alpha):
+    """n(α) = (sin α, 0, −cos α), the bar plane's normal in the facing frame at take-off."""
+    return jnp.stack([jnp.sin(alpha), jnp.zeros_like(alpha), -jnp.cos(alpha)])
+
+
+def bar_plane_distance(speed, bar_distance, bar_time):
+    """The bar plane's distance from the take-off point along n(α): `bar_distance` when
+    `bar_time` is 0; else where the root's take-off speed towards the bar plane,
+    `speed` = v · n(α) (`JumpEnv.bar_speed`), carries it in `bar_time`, and at least
+    `MIN_BAR_DISTANCE`.
+
+    The thesis turns "the high jump suite" by α (§3.6.1) but gives no distance. At a fixed 1.2 m,
+    v · n(α) alone separated our trainings' outcomes (docs/discovery/README.md, "Where the bar
+    stands"): it is the time to the bar that α and v_z change most."""
+    if bar_time == 0.0:
+        return jnp.asarray(bar_distance, jnp.result_type(speed))
+    return jnp.maximum(speed * bar_time, MIN_BAR_DISTANCE)
+
+
+def jump_geometry(kind, origin, heading, alpha, z, dtype, distance=BAR_DISTANCE):
     """(normal n (3,), the bar plane's distance d from the origin along n, the far plane's
-    (obstacle: its far face; high jump: = d), the crossing plane's, box centres (2, 3),
-    rotations (2, 3, 3), half sizes (2, 3)) of the bar/obstacle and the block, in the world;
-    `heading` turns facing-frame vectors to the world."""
+    (obstacle: its far face; high jump: = d = `distance`), the crossing plane's, box centres
+    (2, 3), rotations (2, 3, 3), half sizes (2, 3)) of the bar/obstacle and the block, in the
+    world; `heading` turns facing-frame vectors to the world."""
     up = jnp.array([0.0, 1.0, 0.0], dtype)
     if kind == "highjump":
-        normal = heading @ jnp.stack([jnp.sin(alpha), jnp.zeros_like(alpha), -jnp.cos(alpha)])
-        near = far = cross = jnp.asarray(BAR_DISTANCE, dtype)
+        normal = heading @ bar_normal(alpha)
+        near = far = cross = jnp.asarray(distance, dtype)
         thickness, height = jnp.asarray(BAR_THICKNESS, dtype), z
         bar_height = z
     else:
@@ -292,6 +328,7 @@ class JumpEnv:
         self.q0, self.qd0 = q0.astype(dtype), qd0.astype(dtype)
         self.model = self._varied(model)
         self.heading = takeoff_state.heading_rotation(rotations.quat_to_matrix(self.q0[3:7]))
+        self._forward_speed = takeoff_state.facing_velocities(self.q0, self.qd0)[1][0]   # v_x
         obstacle = "bar" if self.kind == "highjump" else "obstacle"
         dummy = Box(obstacle, (0.0, -5.0, 0.0), (0.1, 0.1, 0.1))
         self.world = make_world(
@@ -376,9 +413,20 @@ class JumpEnv:
                 "c_offset": offset_coefficient(self.kind, z).astype(dtype)}
 
     def geometry(self, task):
-        alpha = task["takeoff"][0] if self.kind == "highjump" else 0.0
-        return jump_geometry(self.kind, self.q0[:3], self.heading, alpha, task["difficulty"],
-                             self.q0.dtype)
+        if self.kind == "obstacle":
+            return jump_geometry(self.kind, self.q0[:3], self.heading, 0.0, task["difficulty"],
+                                 self.q0.dtype)
+        x = task["takeoff"]
+        distance = bar_plane_distance(self.bar_speed(x), self.settings.bar_distance,
+                                      self.settings.bar_time)
+        return jump_geometry(self.kind, self.q0[:3], self.heading, x[0], task["difficulty"],
+                             self.q0.dtype, distance)
+
+    def bar_speed(self, x):
+        """v · n(α): the root's take-off speed towards the bar plane (high jump), from the
+        clip's forward speed v_x and x = (α, ω_x, ω_z, v_z)."""
+        x = jnp.asarray(x, self.q0.dtype)
+        return self._forward_speed * jnp.sin(x[0]) - x[3] * jnp.cos(x[0])
 
     def world_for(self, task, geometry=None):
         """The world of an episode (its bar or obstacle and block), e.g. to draw it; from its

@@ -35,7 +35,8 @@ the clip's:
     obstacle   x = (ω_x, ω_y, ω_z).
 α, the approach angle, turns the bar and the mat about the take-off point, not the character:
 the bar's plane has the horizontal normal n(α) = (sin α, 0, −cos α) in the facing frame (the
-thesis's wall line x sin α − z cos α = 0, moved 1.2 m along n), so α = 0 is a bar on the
+thesis's wall line x sin α − z cos α = 0, moved along n by `bar_distance`, 1.2 m, or by
+`bar_time`'s rule: `agents.tasks.jump.bar_plane_distance`), so α = 0 is a bar on the
 character's left along its running direction, crossed sideways (the Fosbury flop's row), and
 α = π/2 a bar straight ahead.
 
