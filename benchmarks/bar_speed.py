@@ -5,7 +5,8 @@ strategy search or by benchmarks/thesis_rows.py): the root's take-off speed towa
 plane, v · n(α) (`JumpEnv.bar_speed`, with the clip of the search's training config), the time
 the bar of that config (`bar_plane_distance`) takes at that speed, and the evaluation's outcome
 and up angle at the bar crossing. It prints them as a markdown table sorted by the speed, then
-the outcomes counted in speed bands (`--bands`, m/s).
+the outcomes counted in speed bands (`--bands`, m/s), beside each band's share of the search
+box `HIGHJUMP_BOUNDS` (of 200,000 uniform points).
 
 Run:  python benchmarks/bar_speed.py docs/discovery/pd docs/discovery/box2 ... \
           [--bands 1.5 2.2] [--data-dir ../shared/data]
@@ -24,11 +25,13 @@ from agents.commands import strategy_search, train_commands
 from agents.datadir import data_dir_from
 from agents.discovery.jump_black_box import outcome, read_result
 from agents.tasks import jump
+from agents.tasks.takeoff_state import HIGHJUMP_BOUNDS
 from bds.search import Failure
 
 
-def rows_of(search_dir: Path, data_dir) -> list[dict]:
-    """One row per evaluation in `search_dir` with a result.json."""
+def rows_of(search_dir: Path, data_dir) -> tuple[list[dict], jump.JumpEnv]:
+    """One row per evaluation in `search_dir` with a result.json, and the environment of its
+    training config."""
     config = strategy_search.load_search_config(search_dir)
     base = train_commands.load_config(config.jump.train, config.jump.set)
     if base.run.task != "highjump":
@@ -48,7 +51,7 @@ def rows_of(search_dir: Path, data_dir) -> list[dict]:
                      "distance": distance, "outcome": result["outcome"],
                      "up_angle": (None if isinstance(feature, Failure)
                                       else float(np.degrees(feature[0])))})
-    return rows
+    return rows, env
 
 
 def main():
@@ -58,8 +61,11 @@ def main():
     parser.add_argument("--data-dir", default=None)
     args = parser.parse_args()
     data_dir = data_dir_from(args.data_dir)
-    rows = sorted((row for search_dir in args.searches for row in rows_of(search_dir, data_dir)),
-                  key=lambda row: row["speed"])
+    found = [rows_of(search_dir, data_dir) for search_dir in args.searches]
+    rows = sorted((row for rows, _ in found for row in rows), key=lambda row: row["speed"])
+    low, high = (np.asarray(bound) for bound in HIGHJUMP_BOUNDS)
+    box = np.random.default_rng(0).uniform(low, high, (200_000, len(low)))
+    box_speeds = np.asarray(found[0][1].bar_speed(box))
     point = lambda x: "(" + ", ".join(f"{v:.2f}" for v in x) + ")"
     print("| search | evaluation | x = (α, ω_x, ω_z, v_z) | actions | v · n(α) (m/s) | bar (m) | "
           "time to it (s) | outcome | up angle |")
@@ -72,11 +78,14 @@ def main():
     edges = [-np.inf, *sorted(args.bands), np.inf]
     counts = Counter((np.searchsorted(edges, row["speed"], side="right") - 1, row["actions"],
                       row["outcome"]) for row in rows)
-    print("\n| v · n(α) (m/s) | actions | successes | failures |\n|---|---|---:|---:|")
+    print("\n| v · n(α) (m/s) | actions | successes | failures | share of the box |\n"
+          "|---|---|---:|---:|---:|")
     for band in range(len(edges) - 1):
+        share = np.mean((box_speeds >= edges[band]) & (box_speeds < edges[band + 1]))
         for actions in sorted({row["actions"] for row in rows}):
             print(f"| [{edges[band]:.1f}, {edges[band + 1]:.1f}) | {actions} | "
-                  f"{counts[band, actions, 'success']} | {counts[band, actions, 'failure']} |")
+                  f"{counts[band, actions, 'success']} | {counts[band, actions, 'failure']} | "
+                  f"{share:.0%} |")
 
 
 if __name__ == "__main__":

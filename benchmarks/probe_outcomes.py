@@ -22,11 +22,9 @@ import dataclasses
 import json
 from pathlib import Path
 
-import numpy as np
-
 from agents.commands import strategy_search, train_commands
 from agents.datadir import data_dir_from
-from agents.discovery.jump_black_box import JumpBlackBox
+from agents.discovery.jump_black_box import JumpBlackBox, early_share
 from agents.rl import trainer as trainer_lib
 from bds.search import logged_evaluations
 from jaxsim.atomic import write_text_atomic
@@ -49,9 +47,8 @@ def probe(search_dir: Path, out: Path, iterations: int, data_dir) -> list[dict]:
     for record in logged_evaluations(search_dir / "evaluations.jsonl"):
         run_dir = out / f"{prefix}_{record['index']:03d}"
         box.train(run_dir, record["x"])
-        metrics = [r for r in trainer_lib.read_metrics(run_dir) if r["iteration"] <= iterations]
-        # an iteration in which no episode ended has no share (None)
-        mean = lambda key: float(np.mean([r[key] for r in metrics if r.get(key) is not None]))
+        records = trainer_lib.read_metrics(run_dir)
+        mean = lambda key: early_share(records, key, iterations)
         rows.append({"search": search_dir.name, "index": record["index"], "x": record["x"],
                      "actions": actions, "succeeded": record["feature"] is not None,
                      **{name: mean(key) for name, key in SHARES.items()},

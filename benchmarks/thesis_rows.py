@@ -7,9 +7,10 @@ rerun may change only what a resumed search may, `strategy_search.check_resumabl
 row an evaluation directory `OUT/evaluations/NNN/` (NNN its place in the order given), so a
 killed run resumes its row's training from its last checkpoint, and a row whose result.json
 exists is read, not trained again (a row in another place is refused: the black box checks x).
-It then prints a markdown table of the rows' outcomes and groups the successes by the search's
-strategy rule (`bds.strategies`; π/6 of the up angle unless the config's same_strategy says
-otherwise), in the order given.
+It then prints a markdown table of the rows' outcomes, with the shares of the first 10 training
+iterations' episodes that crossed the bar's plane and that hit the bar (what the probe give-up
+point reads), and groups the successes by the search's strategy rule (`bds.strategies`; π/6 of
+the up angle unless the config's same_strategy says otherwise), in the order given.
 
 If the rows give as many strategies as the thesis names, our training can produce them, and
 what a search finds depends on where it looks; if they give fewer, the training is the likelier
@@ -34,8 +35,10 @@ import numpy as np
 from agents import config as config_io
 from agents.commands import strategy_search, train_commands
 from agents.datadir import data_dir_from
-from agents.discovery.jump_black_box import JumpBlackBox, evaluation_dir, outcome, read_result
+from agents.discovery.jump_black_box import (TRAIN, JumpBlackBox, early_share, evaluation_dir,
+                                             outcome, read_result)
 from agents.rl import parallel
+from agents.rl import trainer as trainer_lib
 from agents.tasks.takeoff_state import (HIGHJUMP_FEATURES, HIGHJUMP_ROWS, OBSTACLE_FEATURES,
                                         OBSTACLE_ROWS)
 from bds import strategies
@@ -43,6 +46,8 @@ from bds.search import Failure
 from jaxsim.atomic import write_text_atomic
 
 ROWS = {"highjump": HIGHJUMP_ROWS, "obstacle": OBSTACLE_ROWS}
+EARLY = 10      # iterations (40,960 samples): the shares of their episodes the table shows
+EARLY_SHARES = {"crossed": "env/episode/crossed", "hit the bar": "env/episode/hit_bar"}
 FEATURES = {"highjump": HIGHJUMP_FEATURES, "obstacle": OBSTACLE_FEATURES}
 
 
@@ -73,7 +78,10 @@ def evaluate_rows(config, names, out: Path, data_dir) -> list[dict]:
     results = []
     for index, name in enumerate(names):
         box.evaluate(index, rows[name])
-        results.append({"row": name, **read_result(evaluation_dir(out, index))})
+        records = trainer_lib.read_metrics(evaluation_dir(out, index) / TRAIN)
+        early = {f"first {EARLY} iterations {what}": early_share(records, key, EARLY)
+                 for what, key in EARLY_SHARES.items()}     # None without the training's log
+        results.append({"row": name, **read_result(evaluation_dir(out, index)), **early})
     return results
 
 
@@ -83,8 +91,10 @@ def table(results, config) -> str:
     threshold, task = config.strategy_threshold(), config.task()
     features = [None if isinstance(g, Failure) else g for g in map(outcome, results)]
     labels = strategies.group(features, threshold, config.search.distance)
-    lines = [f"| row | x = ({', '.join(FEATURES[task])}) | outcome | bar | up angle | strategy "
-             "| samples | minutes |", "|---|---|---|---:|---:|---:|---:|---:|"]
+    shares = [f"first {EARLY} iterations {what}" for what in EARLY_SHARES]
+    lines = [f"| row | x = ({', '.join(FEATURES[task])}) | {' | '.join(shares)} | outcome | bar "
+             "| up angle | strategy | samples | minutes |",
+             "|---|---|" + "---:|" * len(shares) + "---|---:|---:|---:|---:|---:|"]
     for result, label in zip(results, labels):
         x = ", ".join(f"{v:.2f}" for v in result["x"])
         if result["feature"]:
@@ -92,7 +102,10 @@ def table(results, config) -> str:
             cells = [f"{result['highest_cleared']:.2f} m", f"{np.degrees(up):.0f}°", str(label)]
         else:
             cells = ["—", "—", "—"]
-        lines.append(f"| {result['row']} | ({x}) | {result['outcome']} | " + " | ".join(cells)
+        early = " | ".join("—" if result[name] is None else f"{result[name]:.1%}"
+                           for name in shares)
+        lines.append(f"| {result['row']} | ({x}) | {early} | {result['outcome']} | "
+                     + " | ".join(cells)
                      + f" | {result['samples']:,} | {result['minutes']:.0f} |")
     found = len({label for label in labels if label >= 0})
     lines.append(f"\n{found} {'strategy' if found == 1 else 'strategies'} (features within "

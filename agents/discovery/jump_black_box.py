@@ -146,12 +146,10 @@ class JumpBlackBox:
     def _too_few_crossed(self, records, iteration: int) -> str | None:
         """The `probe_samples` point's judge: the share of the episodes of iterations 1 …
         `iteration` that crossed the bar's plane (each iteration's share, averaged)."""
-        shares = [r.get("env/episode/crossed") for r in records if r["iteration"] <= iteration]
-        shares = [share for share in shares if share is not None]   # None: no episode ended
-        if not shares:
+        crossed = early_share(records, "env/episode/crossed", iteration)
+        if crossed is None:
             raise SearchError("the give-up point probe_samples needs the training iterations' "
                               "env/episode/crossed, which this task's metrics do not have")
-        crossed = float(np.mean(shares))
         if crossed > self.settings.probe_crossing:
             return None
         return (f"{crossed:.1%} of its first {iteration} iterations' episodes crossed the bar's "
@@ -253,6 +251,15 @@ def measure(directory: Path, run_dir: Path, episodes: int, data_dir=None, **fiel
     _keep_episode(directory, measured, height)
     write_text_atomic(directory / RESULT, json.dumps(result, indent=2) + "\n")
     return result
+
+
+def early_share(records, key: str, iterations: int) -> float | None:
+    """The mean of the metric `key` (an episode share, e.g. "env/episode/crossed") over training
+    iterations 1 … `iterations` of a metrics log's `records`, leaving out iterations in which
+    no episode ended (None); None when no iteration has it."""
+    shares = [r.get(key) for r in records if r["iteration"] <= iterations]
+    shares = [share for share in shares if share is not None]
+    return float(np.mean(shares)) if shares else None
 
 
 def _given_up(fields) -> str:

@@ -424,9 +424,10 @@ class JumpEnv:
 
     def bar_speed(self, x):
         """v · n(α): the root's take-off speed towards the bar plane (high jump), from the
-        clip's forward speed v_x and x = (α, ω_x, ω_z, v_z)."""
+        clip's forward speed v_x and x = (α, ω_x, ω_z, v_z) (or a batch of them, (..., 4))."""
         x = jnp.asarray(x, self.q0.dtype)
-        return self._forward_speed * jnp.sin(x[0]) - x[3] * jnp.cos(x[0])
+        alpha, v_z = x[..., 0], x[..., 3]
+        return self._forward_speed * jnp.sin(alpha) - v_z * jnp.cos(alpha)
 
     def world_for(self, task, geometry=None):
         """The world of an episode (its bar or obstacle and block), e.g. to draw it; from its
