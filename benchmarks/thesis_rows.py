@@ -46,7 +46,7 @@ from bds.search import Failure
 from jaxsim.atomic import write_text_atomic
 
 ROWS = {"highjump": HIGHJUMP_ROWS, "obstacle": OBSTACLE_ROWS}
-EARLY = 10      # iterations (40,960 samples): the shares of their episodes the table shows
+EARLY = 10      # iterations (40,960 samples at 4,096 each): the table shows their episodes' shares
 EARLY_SHARES = {"crossed": "env/episode/crossed", "hit the bar": "env/episode/hit_bar"}
 FEATURES = {"highjump": HIGHJUMP_FEATURES, "obstacle": OBSTACLE_FEATURES}
 
