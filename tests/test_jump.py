@@ -323,8 +323,8 @@ def test_bar_time_puts_the_bar_where_the_takeoff_velocity_carries_the_root(data_
         speed = float(np.dot(velocity, [np.sin(alpha), 0.0, -np.cos(alpha)]))
         expected = max(0.42 * speed, jump.MIN_BAR_DISTANCE)
         normal, origin, far, cross, *_ = env.geometry(state.task)
-        (bar, block), (_, block_half) = (env.world_for(state.task).box_center,
-                                         env.world_for(state.task).box_half_size)
+        world = env.world_for(state.task)
+        (bar, block), (_, block_half) = world.box_center, world.box_half_size
         assert float(jnp.dot(bar - origin, normal)) == pytest.approx(expected, abs=1e-9)
         assert float(cross) == float(far) == pytest.approx(expected, abs=1e-9)
         assert float(jnp.dot(block - origin, normal) - block_half[0]) == pytest.approx(
