@@ -305,7 +305,8 @@ def test_children_that_stop_as_interrupted_give_the_run_their_status(tmp_path, s
     _wait_until_ready(tmp_path, 2)
     failed = []
     assert launch._wait(children, failed, [stop], print) == 130
-    assert [child.returncode for child in children] == [130, 130] and failed == [0]
+    assert [child.returncode for child in children] == [130, 130]
+    assert failed in ([0], [1])          # whichever child the launcher saw end first
 
 
 def test_a_child_ended_by_the_signal_itself_gives_128_plus_its_number(tmp_path):
