@@ -47,7 +47,9 @@ from jaxsim.atomic import write_text_atomic
 
 ROWS = {"highjump": HIGHJUMP_ROWS, "obstacle": OBSTACLE_ROWS}
 EARLY = 10      # iterations (40,960 samples at 4,096 each): the table shows their episodes' shares
-EARLY_SHARES = {"crossed": "env/episode/crossed", "hit the bar": "env/episode/hit_bar"}
+EARLY_SHARES = {f"first {EARLY} iterations {what}": key   # the table's column: the metric
+                for what, key in (("crossed", "env/episode/crossed"),
+                                  ("hit the bar", "env/episode/hit_bar"))}
 FEATURES = {"highjump": HIGHJUMP_FEATURES, "obstacle": OBSTACLE_FEATURES}
 
 
@@ -79,8 +81,8 @@ def evaluate_rows(config, names, out: Path, data_dir) -> list[dict]:
     for index, name in enumerate(names):
         box.evaluate(index, rows[name])
         records = trainer_lib.read_metrics(evaluation_dir(out, index) / TRAIN)
-        early = {f"first {EARLY} iterations {what}": early_share(records, key, EARLY)
-                 for what, key in EARLY_SHARES.items()}     # None without the training's log
+        early = {column: early_share(records, key, EARLY)   # None without the training's log
+                 for column, key in EARLY_SHARES.items()}
         results.append({"row": name, **read_result(evaluation_dir(out, index)), **early})
     return results
 
@@ -91,7 +93,7 @@ def table(results, config) -> str:
     threshold, task = config.strategy_threshold(), config.task()
     features = [None if isinstance(g, Failure) else g for g in map(outcome, results)]
     labels = strategies.group(features, threshold, config.search.distance)
-    shares = [f"first {EARLY} iterations {what}" for what in EARLY_SHARES]
+    shares = list(EARLY_SHARES)
     lines = [f"| row | x = ({', '.join(FEATURES[task])}) | {' | '.join(shares)} | outcome | bar "
              "| up angle | strategy | samples | minutes |",
              "|---|---|" + "---:|" * len(shares) + "---|---:|---:|---:|---:|---:|"]
