@@ -73,7 +73,7 @@ def evaluate_rows(config, names, out: Path, data_dir) -> list[dict]:
                          f"{', '.join(rows)}")
     out.mkdir(parents=True, exist_ok=True)
     text = strategy_search.config_text(config)
-    if (out / "config.json").exists():        # rows evaluated before: as a search resumes
+    if strategy_search.started(out):          # rows evaluated before: as a search resumes
         strategy_search.check_resumable(out, json.loads(text))
     write_text_atomic(out / "config.json", text)
     box = JumpBlackBox(config.jump, out, data_dir)

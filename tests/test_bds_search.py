@@ -562,8 +562,25 @@ def test_a_resumed_takeoff_search_checks_its_config_json(tmp_path, capsys):
                             "--set", "search.budget=5"], capsys)
     assert code == 0 and "[  5/5]" in out
     (out_dir / "config.json").unlink()
-    with pytest.raises(SystemExit, match="holds a search log but no config.json"):
+    with pytest.raises(SystemExit, match="holds a search's log or evaluations but no config.json"):
         main(["search", str(config), "--out", str(out_dir), "--set", "search.budget=6"])
+
+
+def test_a_search_whose_first_evaluation_was_killed_unlogged_checks_its_config(tmp_path, capsys):
+    """A first evaluation killed before its log line leaves no log (the search removes an
+    empty one) but its training's directory: a rerun under another config must not resume
+    that training as if it were this config's."""
+    config = write_config(tmp_path, RANDOM_SEARCH)
+    out_dir = tmp_path / "run"
+    assert run_cli(["search", str(config), "--out", str(out_dir)], capsys)[0] == 0
+    (out_dir / "evaluations.jsonl").unlink()
+    assert not strategy_search.started(out_dir)
+    (out_dir / "evaluations" / "000" / "train").mkdir(parents=True)
+    assert strategy_search.started(out_dir)
+    with pytest.raises(SystemExit, match="search.seed = 0, but the config gives 3"):
+        main(["search", str(config), "--out", str(out_dir), "--set", "search.seed=3"])
+    code, out, _ = run_cli(["search", str(config), "--out", str(out_dir)], capsys)
+    assert code == 0
 
 
 def test_takeoff_search_reports_a_damaged_log_and_lets_other_errors_through(

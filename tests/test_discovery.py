@@ -109,8 +109,17 @@ def test_a_training_is_given_up_by_its_record_at_the_give_up_point(success, give
     records = [{"iteration": i, "samples": 100 * i, "seconds": 1.0 * i, "env/episode/success": s}
                for i, s in ((3, 0.0), (4, success), (5, 0.0))]
     why = judge(records, iteration)
-    assert (why == "at most 1% of the episodes succeeded after 400 samples") == gives_up
+    assert (why == f"{success:.1%} of the episodes succeeded after 400 samples (given up at "
+                   "1.0% or less)") == gives_up
     assert gives_up or why is None
+    # an iteration in which no episode ended is judged by the last one before it that had one
+    records[1]["env/episode/success"] = None
+    assert judge(records, iteration) == "0.0% of the episodes succeeded after 400 samples " \
+                                        "(given up at 1.0% or less)"
+    with pytest.raises(SearchError, match="no episode ended in the training's first 4"):
+        judge([{**r, "env/episode/success": None} for r in records], iteration)
+    with pytest.raises(SearchError, match="metrics do not have"):
+        judge([{"iteration": 4}], iteration)
 
 
 @pytest.mark.parametrize("shares, gives_up", [((0.0, 0.06, 0.09), True),
@@ -134,8 +143,10 @@ def test_the_probe_gives_up_by_the_crossing_share_of_the_first_iterations(shares
     assert gives_up or why is None
     assert points[0][1]([{"iteration": 1, "env/episode/crossed": None},   # no episode ended
                          {"iteration": 2, "env/episode/crossed": 0.2}], 3) is None
-    with pytest.raises(SearchError, match="env/episode/crossed"):
+    with pytest.raises(SearchError, match="env/episode/crossed, which this task's metrics"):
         points[0][1]([{"iteration": 1, "env/episode/success": 0.0}], 3)
+    with pytest.raises(SearchError, match="no episode ended .* set probe_samples later"):
+        points[0][1]([{"iteration": 1, "env/episode/crossed": None}], 3)
     # off at 0, and a point at or past the budget is never reached
     assert jump_black_box.JumpBlackBox(jump_black_box.JumpBlackBoxSettings(
         samples=300, probe_samples=300, give_up_samples=0), None).give_up_points(100) == []
@@ -205,8 +216,10 @@ def test_an_evaluation_with_a_result_is_not_run_again_and_another_search_s_is_re
     (directory / jump_black_box.RESULT).write_text(json.dumps(
         {**result, "outcome": "failure", "reason": "no jump", "feature": None}))
     assert box.evaluate(3, np.array(x)) == Failure("no jump")
-    with pytest.raises(Exception, match="belongs to another search"):
+    with pytest.raises(SearchError, match="belongs to another search"):
         box.evaluate(3, np.array(x) + 0.5)
+    with pytest.raises(SearchError, match="belongs to another search"):   # another task's x
+        box.evaluate(3, np.array(x[:3]))
 
 
 def test_the_feature_is_the_mean_over_the_clearing_episodes_and_needs_a_majority():

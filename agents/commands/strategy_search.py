@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import config as config_io
-from agents.discovery.jump_black_box import JumpBlackBox, JumpBlackBoxSettings
+from agents.discovery.jump_black_box import EVALUATIONS, JumpBlackBox, JumpBlackBoxSettings
 from agents.tasks import takeoff_state
 from bds import strategies
 from bds.gp import to_unit
@@ -48,11 +48,12 @@ BLACK_BOXES = ("landscape", "ballistic", "jump")
 # groups strategies.
 RESUMABLE = ("search.budget", "same_strategy",
              *(f"executor.{field.name}" for field in dataclasses.fields(ExecutorSettings)))
+SEARCH_LOG = "evaluations.jsonl"   # the search's JSONL log, in its directory
 
 
 @dataclass(frozen=True)
 class Box:
-    lower: tuple[float, ...] = ()     # empty: the unit box
+    lower: tuple[float, ...] = ()     # empty: the black box's own (`bounds`)
     upper: tuple[float, ...] = ()
 
 
@@ -181,15 +182,25 @@ def config_text(config: SearchConfig) -> str:
     return json.dumps(dataclasses.asdict(config), indent=2) + "\n"
 
 
+def started(out_dir) -> bool:
+    """Whether `out_dir` holds a search's work that another config would misread: its log, or
+    an evaluation's directory (a first evaluation killed before it was logged leaves its
+    training's checkpoint and no log)."""
+    out_dir = Path(out_dir)
+    evaluations = out_dir / EVALUATIONS
+    return ((out_dir / SEARCH_LOG).exists()
+            or (evaluations.is_dir() and any(evaluations.iterdir())))
+
+
 def check_resumable(out_dir, resolved):
     """Raise a ConfigError naming the first key, other than those in RESUMABLE, in which the
     resolved config (as config.json holds it) differs from the run's config.json. A key the
     stored file lacks (written before that setting existed) is taken to have its default."""
     path = Path(out_dir) / "config.json"
     if not path.exists():
-        raise config_io.ConfigError(f"{out_dir} holds a search log but no config.json, so this "
-                                    "config cannot be checked against the search in it; use "
-                                    "another --out")
+        raise config_io.ConfigError(f"{out_dir} holds a search's log or evaluations but no "
+                                    "config.json, so this config cannot be checked against the "
+                                    "search in it; use another --out")
     stored = config_io.read_stored(path)
     defaults = _flat(json.loads(json.dumps(dataclasses.asdict(SearchConfig()))))
     stored = {**defaults, **_flat(stored)}
@@ -209,9 +220,8 @@ def run(config_path, out_dir=None, overrides=(), workers=None, echo=print, data_
         overrides = [*overrides, f"executor.workers={workers}"]
     config = config_io.load(config_path, SearchConfig, overrides)
     out_dir = Path(out_dir or Path("runs") / Path(config_path).stem)
-    log = out_dir / "evaluations.jsonl"
     text = config_text(config)
-    if log.exists():
+    if started(out_dir):
         check_resumable(out_dir, json.loads(text))
     check_writable(out_dir, what="the search's log")
     with hold_directory(out_dir, "the search"):
@@ -221,7 +231,7 @@ def run(config_path, out_dir=None, overrides=(), workers=None, echo=print, data_
 def _run_held(config: SearchConfig, out_dir: Path, text: str, echo, data_dir):
     """`run`'s work in the search directory, which this process holds: the search, resumed
     from its log, with progress and the summary."""
-    log = out_dir / "evaluations.jsonl"
+    log = out_dir / SEARCH_LOG
     if config.black_box == "jump":     # trainings in this process use a device per core
         from agents.commands import train_commands
         from agents.rl import parallel

@@ -8,8 +8,9 @@ One evaluation, in its own directory `<search>/evaluations/NNN/` (NNN its index 
    of training when given) is spent, whichever comes first. A training that is going nowhere
    stops early ("bad initial states will fail fast", §3.4.1), at the first of two give-up
    points that judges it so:
-   - `probe_samples` (off at 0): at most `probe_crossing` of the episodes of the training's
-     iterations up to there crossed the bar's plane. Those are the nearly untrained policy's
+   - `probe_samples` (off at 0): the training's iterations up to there crossed the bar's plane
+     in at most `probe_crossing` of their episodes (each iteration's share, averaged over the
+     iterations in which an episode ended). Those are the nearly untrained policy's
      exploratory episodes, and in the plain-PD high-jump searches every take-off state whose
      training succeeded had 6.6 % or more of them cross in its first 10 iterations, every one
      that failed 3.6 % or less (docs/discovery, "Does the untrained policy foretell a
@@ -106,7 +107,7 @@ def outcome(result: dict):
 @dataclass(frozen=True, eq=False)
 class JumpBlackBox:
     """g(x) of a jump task (see the module docstring); picklable, so worker processes can run
-    it. `kind` is the training config's task ("highjump" or "obstacle")."""
+    it."""
 
     settings: JumpBlackBoxSettings
     search_dir: Path
@@ -124,7 +125,7 @@ class JumpBlackBox:
         x = np.asarray(x, float)
         done = read_result(directory)
         if done is not None:
-            if not np.allclose(done["x"], x, rtol=0, atol=1e-9):
+            if not same_x(done["x"], x):
                 raise SearchError(f"{directory / RESULT} holds the evaluation of x = "
                                   f"{done['x']}, but this search's evaluation {index} is at "
                                   f"x = {x.tolist()}; the directory belongs to another search")
@@ -148,21 +149,26 @@ class JumpBlackBox:
         `iteration` that crossed the bar's plane (each iteration's share, averaged)."""
         crossed = early_share(records, "env/episode/crossed", iteration)
         if crossed is None:
-            raise SearchError("the give-up point probe_samples needs the training iterations' "
-                              "env/episode/crossed, which this task's metrics do not have")
+            raise SearchError(_no_share("probe_samples", "env/episode/crossed", records,
+                                        iteration))
         if crossed > self.settings.probe_crossing:
             return None
         return (f"{crossed:.1%} of its first {iteration} iterations' episodes crossed the bar's "
                 f"plane (given up at {self.settings.probe_crossing:.1%} or less)")
 
     def _too_few_succeeded(self, records, iteration: int) -> str | None:
-        """The `give_up_samples` point's judge, by the record of iteration `iteration` (also
-        when a killed search finds the training past it)."""
-        at = next((r for r in records if r["iteration"] >= iteration), records[-1])
-        if at.get("env/episode/success", 0.0) > self.settings.give_up_success:
+        """The `give_up_samples` point's judge, by the share of iteration `iteration`'s
+        episodes that succeeded (of the last iteration before it in which an episode ended,
+        when none did in it)."""
+        key = "env/episode/success"
+        shares = [r[key] for r in records if r["iteration"] <= iteration and r.get(key) is not None]
+        if not shares:
+            raise SearchError(_no_share("give_up_samples", key, records, iteration))
+        if shares[-1] > self.settings.give_up_success:
             return None
-        return (f"at most {self.settings.give_up_success:.0%} of the episodes succeeded after "
-                f"{self.settings.give_up_samples:,} samples")
+        return (f"{shares[-1]:.1%} of the episodes succeeded after "
+                f"{self.settings.give_up_samples:,} samples (given up at "
+                f"{self.settings.give_up_success:.1%} or less)")
 
     def train(self, run_dir: Path, x) -> str | None:
         """Train the policy of x in `run_dir` in legs that end at the give-up points and at
@@ -180,7 +186,7 @@ class JumpBlackBox:
         echo = _prefixed(f"  [g {run_dir.parent.name}] ")
         for leg_iterations, judge in legs:
             def finished(config, last):
-                if not np.allclose(config.sections()[config.run.task]["takeoff"], x, atol=1e-6):
+                if not same_x(config.sections()[config.run.task]["takeoff"], x):
                     raise SearchError(f"{run_dir} trains from another take-off state than x = "
                                       f"{x.tolist()}; the directory belongs to another search")
                 return (last.get("iteration", 0) >= leg_iterations
@@ -246,8 +252,7 @@ def measure(directory: Path, run_dir: Path, episodes: int, data_dir=None, **fiel
             f"the deterministic policy cleared {int(cleared.sum())} of {cleared.size} "
             f"episodes at {height:.2f} m after {result['samples']:,} training samples "
             f"({result['minutes']:.0f} min{_given_up(fields)}); "
-            f"in its last training iteration "
-            f"{100 * (result['training_success'] or 0):.1f}% of the episodes succeeded"))
+            f"in its last training iteration {_share_text(result['training_success'])}"))
     _keep_episode(directory, measured, height)
     write_text_atomic(directory / RESULT, json.dumps(result, indent=2) + "\n")
     return result
@@ -260,6 +265,29 @@ def early_share(records, key: str, iterations: int) -> float | None:
     shares = [r.get(key) for r in records if r["iteration"] <= iterations]
     shares = [share for share in shares if share is not None]
     return float(np.mean(shares)) if shares else None
+
+
+def same_x(stored, x) -> bool:
+    """Whether a take-off state kept in a run's files is the x it is now asked for (one
+    tolerance for every such check: the files hold x as JSON floats)."""
+    stored, x = np.asarray(stored, float), np.asarray(x, float)
+    return stored.shape == x.shape and bool(np.allclose(stored, x, rtol=0, atol=1e-9))
+
+
+def _no_share(point: str, key: str, records, iteration: int) -> str:
+    """Why the give-up point `point` cannot judge a training by the episode share `key`."""
+    if not any(key in r for r in records):
+        return (f"the give-up point {point} needs the training iterations' {key}, which this "
+                "task's metrics do not have")
+    return (f"the give-up point {point} judges by {key}, but no episode ended in the training's "
+            f"first {iteration} iterations; set {point} later")
+
+
+def _share_text(success) -> str:
+    """The last training iteration's success share, for a failure's reason."""
+    if success is None:
+        return "no episode ended"
+    return f"{100 * success:.1f}% of the episodes succeeded"
 
 
 def _given_up(fields) -> str:
