@@ -42,7 +42,7 @@ from agents.rl import trainer as trainer_lib
 from agents.tasks.takeoff_state import (HIGHJUMP_FEATURES, HIGHJUMP_ROWS, OBSTACLE_FEATURES,
                                         OBSTACLE_ROWS)
 from bds import strategies
-from bds.search import Failure
+from bds.search import Failure, SearchError
 from jaxsim.atomic import write_text_atomic
 
 ROWS = {"highjump": HIGHJUMP_ROWS, "obstacle": OBSTACLE_ROWS}
@@ -124,10 +124,13 @@ def main():
                         metavar="KEY=VALUE")
     parser.add_argument("--data-dir")
     args = parser.parse_args()
-    config = load_config(args.config, args.overrides)
-    parallel.start(train_commands.load_config(config.jump.train, config.jump.set).run.devices)
-    names = args.rows or list(ROWS[config.task()])
-    results = evaluate_rows(config, names, args.out, data_dir_from(args.data_dir))
+    try:
+        config = load_config(args.config, args.overrides)
+        parallel.start(train_commands.load_config(config.jump.train, config.jump.set).run.devices)
+        names = args.rows or list(ROWS[config.task()])
+        results = evaluate_rows(config, names, args.out, data_dir_from(args.data_dir))
+    except (config_io.ConfigError, SearchError) as error:
+        raise SystemExit(f"error: {error}") from None
     print(table(results, config))
 
 
