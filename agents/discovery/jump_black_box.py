@@ -161,7 +161,7 @@ class JumpBlackBox:
         episodes that succeeded (of the last iteration before it in which an episode ended,
         when none did in it)."""
         key = "env/episode/success"
-        shares = [r[key] for r in records if r["iteration"] <= iteration and r.get(key) is not None]
+        shares = _shares(records, key, iteration)
         if not shares:
             raise SearchError(_no_share("give_up_samples", key, records, iteration))
         if shares[-1] > self.settings.give_up_success:
@@ -262,9 +262,14 @@ def early_share(records, key: str, iterations: int) -> float | None:
     """The mean of the metric `key` (an episode share, e.g. "env/episode/crossed") over training
     iterations 1 … `iterations` of a metrics log's `records`, leaving out iterations in which
     no episode ended (None); None when no iteration has it."""
-    shares = [r.get(key) for r in records if r["iteration"] <= iterations]
-    shares = [share for share in shares if share is not None]
+    shares = _shares(records, key, iterations)
     return float(np.mean(shares)) if shares else None
+
+
+def _shares(records, key: str, iterations: int) -> list:
+    """The metric `key` of training iterations 1 … `iterations`, in order, leaving out those in
+    which no episode ended (None) or that lack it."""
+    return [r[key] for r in records if r["iteration"] <= iterations and r.get(key) is not None]
 
 
 def same_x(stored, x) -> bool:
