@@ -67,6 +67,7 @@ CAPACITY_STEP = 16              # observation arrays are padded to a multiple of
 LBFGS_CANDIDATES = 1024         # uniform points the L-BFGS starts of an exploration pick come from
 ROTATION_DIM = 3                # the feature size the "rotation" distance takes (a rotation vector)
 SUCCESS_MODEL_KEY = 1 << 30     # the success model's random stream (the picks' are their indices)
+SEARCH_LOG = "evaluations.jsonl"  # the file a search directory keeps its log in
 
 
 class SearchError(ValueError):

@@ -21,7 +21,7 @@ import numpy as np
 
 from agents.tasks.takeoff_state import HIGHJUMP_BOUNDS
 from bds import acquisition, feasibility, gp
-from bds.search import RoundModel, SearchSettings, logged_evaluations, success_model
+from bds.search import SEARCH_LOG, RoundModel, SearchSettings, logged_evaluations, success_model
 
 
 def fitted(directory: Path, index: int, hyperprior: bool | None):
@@ -32,7 +32,7 @@ def fitted(directory: Path, index: int, hyperprior: bool | None):
     if hyperprior is not None:
         settings = dataclasses.replace(settings, hyperprior=hyperprior)
     lower, upper = (np.array(b) for b in HIGHJUMP_BOUNDS)
-    records = logged_evaluations(directory / "evaluations.jsonl")[:index]
+    records = logged_evaluations(directory / SEARCH_LOG)[:index]
     unit = lambda rs: gp.to_unit(np.array([r["x"] for r in rs]).reshape(-1, 4), lower, upper)
     good = [r for r in records if r["feature"] is not None]
     failed_unit = unit([r for r in records if r["feature"] is None])

@@ -23,7 +23,7 @@ import numpy as np
 
 from agents.commands.strategy_search import load_search_config
 from bds import feasibility, gp
-from bds.search import logged_evaluations, plan_round, success_model
+from bds.search import SEARCH_LOG, logged_evaluations, plan_round, success_model
 
 DISCOVERY = Path(__file__).resolve().parent.parent / "docs" / "discovery"
 
@@ -33,7 +33,7 @@ def replay(directory=DISCOVERY):
     config = load_search_config(directory)
     settings = dataclasses.replace(config.search, feasibility=True)
     lower, upper = config.bounds()                   # the search's own box
-    records = logged_evaluations(directory / "evaluations.jsonl")
+    records = logged_evaluations(directory / SEARCH_LOG)
     rows = []
     for index in range(settings.initial, len(records) + 1):
         done = records[:index]

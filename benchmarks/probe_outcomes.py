@@ -26,7 +26,7 @@ from agents.commands import strategy_search, train_commands
 from agents.datadir import data_dir_from
 from agents.discovery.jump_black_box import JumpBlackBox, early_share
 from agents.rl import trainer as trainer_lib
-from bds.search import logged_evaluations
+from bds.search import SEARCH_LOG, logged_evaluations
 from jaxsim.atomic import write_text_atomic
 
 SHARES = {"success": "env/episode/success", "crossed": "env/episode/crossed",
@@ -44,7 +44,7 @@ def probe(search_dir: Path, out: Path, iterations: int, data_dir) -> list[dict]:
     actions = base.sections()[base.run.task].get("actions")
     prefix = f"{search_dir.resolve().parent.name}_{search_dir.name}"   # e.g. discovery_pd
     rows = []
-    for record in logged_evaluations(search_dir / "evaluations.jsonl"):
+    for record in logged_evaluations(search_dir / SEARCH_LOG):
         run_dir = out / f"{prefix}_{record['index']:03d}"
         box.train(run_dir, record["x"])
         records = trainer_lib.read_metrics(run_dir)

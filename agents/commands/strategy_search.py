@@ -39,7 +39,7 @@ from agents.tasks import takeoff_state
 from bds import strategies
 from bds.gp import to_unit
 from bds.landscapes import LandscapeSettings, StrategyLandscape
-from bds.search import SearchSettings, check_bounds, logged_evaluations, search
+from bds.search import SEARCH_LOG, SearchSettings, check_bounds, logged_evaluations, search
 from jaxsim.atomic import check_writable, hold_directory, write_text_atomic
 from jaxsim.executor import ExecutorSettings, executor_from
 
@@ -48,7 +48,6 @@ BLACK_BOXES = ("landscape", "ballistic", "jump")
 # groups strategies.
 RESUMABLE = ("search.budget", "same_strategy",
              *(f"executor.{field.name}" for field in dataclasses.fields(ExecutorSettings)))
-SEARCH_LOG = "evaluations.jsonl"   # the search's JSONL log, in its directory
 
 
 @dataclass(frozen=True)

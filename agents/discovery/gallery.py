@@ -54,7 +54,7 @@ import numpy as np
 
 from agents.discovery import jump_black_box, stage2
 from bds import strategies
-from bds.search import SearchError, logged_evaluations
+from bds.search import SEARCH_LOG, SearchError, logged_evaluations
 from jaxsim import runlog
 from jaxsim.atomic import check_writable, write_text_atomic
 
@@ -62,7 +62,7 @@ PAGE = "gallery.html"
 IMAGES = "gallery"
 CONTACT_SHEET = "contact_sheet.png"
 STAGE2 = stage2.STAGE2      # SEARCH/stage2, shown by default
-SEARCH_FILES = ("config.json", "evaluations.jsonl")
+SEARCH_FILES = ("config.json", SEARCH_LOG)
 GIF_FRAMES = 24
 GIF_SIZE = 2.3          # inches at 100 dpi
 PEAK_PANEL = 2.0        # inches at 100 dpi: the peak views and the GIF fit beside the facts
@@ -272,7 +272,7 @@ def _source_name(directory: Path) -> str:
 def _stage1(search_dir: Path, config: dict) -> Section:
     """The search's own evaluations, grouped as its summary groups them (`takeoff search`:
     the features of its log within its budget, by its threshold and distance)."""
-    log = search_dir / "evaluations.jsonl"
+    log = search_dir / SEARCH_LOG
     records = {r["index"]: r for r in logged_evaluations(log)}
     planned = _planned(log)
     dirs = _numbered_dirs(search_dir / jump_black_box.EVALUATIONS)

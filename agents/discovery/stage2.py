@@ -56,7 +56,7 @@ from agents.rl import trainer as trainer_lib
 from bds import strategies
 from bds.acquisition import distance_function
 from bds.novelty import novelty_reward
-from bds.search import SearchError, logged_evaluations
+from bds.search import SEARCH_LOG, SearchError, logged_evaluations
 
 RETRAINED = "retrained"     # evaluations/NNN/retrained: a lost Stage-1 policy, trained again
 FEATURE_SIZE = 3            # the root orientation at the bar crossing, as a rotation vector
@@ -214,7 +214,7 @@ def read_search(search_dir):
     if config.get("black_box") != "jump":
         raise SearchError(f"{directory}: a search of the {config.get('black_box')!r} black box; "
                           "Stage 2 needs a jump search (black_box = \"jump\")")
-    records = logged_evaluations(directory / "evaluations.jsonl")
+    records = logged_evaluations(directory / SEARCH_LOG)
     return config, records[:config["search"]["budget"]]
 
 
