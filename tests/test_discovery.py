@@ -187,6 +187,40 @@ def test_a_training_stops_at_the_first_give_up_point_that_judges_it_going_nowher
     assert jump_black_box._given_up(fields) == (f", given up: {given_up}" if given_up else "")
 
 
+@pytest.mark.parametrize("leg, last, minutes, trained", [
+    (50, None, 0.0, False),                                               # no checkpoint
+    (50, {"iteration": 20, "seconds": 60.0}, 0.0, False),                 # killed
+    (20, {"iteration": 20, "seconds": 60.0}, 0.0, True),                  # at a give-up point
+    (50, {"iteration": 50, "seconds": 60.0}, 0.0, True),                  # all of its samples
+    (50, {"iteration": 20, "seconds": 60.0, trainer_lib.DIFFICULTY: 1.0}, 0.0, True),  # z_freeze
+    (50, {"iteration": 20, "seconds": 299.0}, 5.0, False),                # minutes left
+    (50, {"iteration": 20, "seconds": 300.0}, 5.0, True),                 # its minutes spent
+])
+def test_a_training_is_trained_when_its_last_leg_ended_on_its_own(tmp_path, leg, last, minutes,
+                                                                 trained):
+    """`trained` (Stage 2's test of a Stage-1 policy): the training ran the iterations its last
+    leg asked for, reached z_freeze, or spent the black box's `minutes` counted over every
+    resume. The run's stored time limit is the minutes left when it was last resumed (1 here),
+    which is no measure of that."""
+    from pathlib import Path
+    from agents.commands import train_commands
+    highjump = Path(__file__).resolve().parent.parent / "configs" / "highjump.toml"
+    settings = jump_black_box.JumpBlackBoxSettings(train=str(highjump), samples=50 * 4096,
+                                                   minutes=minutes, z_freeze=1.0)
+    box = jump_black_box.JumpBlackBox(settings, tmp_path)
+    run_dir = tmp_path / "train"
+    run_dir.mkdir()
+    config = train_commands.load_config(highjump, [f"run.iterations={leg}",
+                                                   "run.stop_difficulty=1.0",
+                                                   "run.time_limit_minutes=1.0"])
+    (run_dir / train_commands.CONFIG).write_text(json.dumps(config.sections()))
+    if last is not None:
+        (run_dir / trainer_lib.CHECKPOINT).write_bytes(b"")
+        record = {**last, "samples": 4096 * last["iteration"]}
+        (run_dir / trainer_lib.METRICS).write_text(json.dumps(record) + "\n")
+    assert box.trained(run_dir) is trained
+
+
 def test_the_give_up_settings_are_checked():
     for name in ("give_up_success", "probe_crossing"):
         with pytest.raises(ValueError, match=name):

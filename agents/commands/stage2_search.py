@@ -231,9 +231,9 @@ def to_toml(sections) -> str:
 
 def _stage1_policy(search_dir, search_config, index, data_dir, echo):
     """Make sure Stage-1 evaluation `index` has a finished policy before a round warm-starts
-    from it. One whose run stopped on its own (`_finished`) is used as it is, however it was
-    trained. One that is missing, or stopped part way, is trained (again), or resumed, by the
-    search's own black box (see the module docstring), then measured as the search measures an
+    from it. One whose training ended on its own (`JumpBlackBox.trained`) is used as it is,
+    however it ended. One that is missing, or killed part way, is trained (again), or resumed,
+    by the search's own black box (see the module docstring), then measured as the search measures an
     evaluation, into evaluations/NNN/retrained/ (result.json, episode, peak pose): a new
     training from the same x may jump another way. Its result.json — what the search measured
     and logged — is kept as it was, and the new measurement joins the policies the rounds are
@@ -242,7 +242,10 @@ def _stage1_policy(search_dir, search_config, index, data_dir, echo):
     from agents.commands import strategy_search
     directory = jump_black_box.evaluation_dir(search_dir, index)
     run_dir, again = directory / jump_black_box.TRAIN, directory / RETRAINED
-    if _finished(run_dir) and not again.exists():
+    config = config_io.build(strategy_search.SearchConfig, search_config,
+                             str(Path(search_dir) / "config.json"))
+    box = strategy_search.black_box(config, search_dir, data_dir)
+    if box.trained(run_dir) and not again.exists():
         return                                       # the policy the search measured
     result = jump_black_box.read_result(directory)   # a success's (stage1_strategies)
     measured = jump_black_box.read_result(again)
@@ -253,9 +256,6 @@ def _stage1_policy(search_dir, search_config, index, data_dir, echo):
                  f"{int(result.get('samples', 0)):,} samples, {result.get('minutes', 0.0):.0f} "
                  "min)")
         again.mkdir(parents=True, exist_ok=True)     # marks the run as one to measure when done
-        config = config_io.build(strategy_search.SearchConfig, search_config,
-                                 str(Path(search_dir) / "config.json"))
-        box = strategy_search.black_box(config, search_dir, data_dir)
         why = box.train(run_dir, result["x"])
         if why:
             raise SearchError(
@@ -275,21 +275,6 @@ def _stage1_policy(search_dir, search_config, index, data_dir, echo):
          f"(first training: {result['highest_cleared']:.2f} m), its crossing {moved:.2f} rad "
          f"from the one the search logged (π/2 = {threshold:.2f}); its rounds are novel "
          f"against both ({again / jump_black_box.RESULT})")
-
-
-def _finished(run_dir) -> bool:
-    """Whether the training in `run_dir` has a checkpoint and stopped on its own, by its own
-    stored settings: all its iterations done, its curriculum at its stop difficulty, or its
-    time limit spent (a search's evaluation stops at any of them, or at its give-up point,
-    which is then its iterations)."""
-    if not trainer_lib.has_checkpoint(run_dir):
-        return False
-    run = train_commands.load_run_config(run_dir).run
-    records = trainer_lib.read_metrics(run_dir)
-    last = records[-1] if records else {}
-    return (last.get("iteration", 0) >= run.iterations
-            or trainer_lib.reached(last, run.stop_difficulty)
-            or 0 < run.time_limit_minutes <= last.get("seconds", 0.0) / 60)
 
 
 def _run_round(search_dir, out, entry, plan, search_config, data_dir, echo):

@@ -182,19 +182,16 @@ class JumpBlackBox:
         base = train_commands.load_config(settings.train, settings.set)
         points = self.give_up_points(base.run.samples_per_iteration)
         legs = [*points, (_iterations(settings.samples, base.run.samples_per_iteration), None)]
-        minutes_left = lambda last: settings.minutes - last.get("seconds", 0.0) / 60
         echo = _prefixed(f"  [g {run_dir.parent.name}] ")
         for leg_iterations, judge in legs:
             def finished(config, last):
                 if not same_x(config.sections()[config.run.task]["takeoff"], x):
                     raise SearchError(f"{run_dir} trains from another take-off state than x = "
                                       f"{x.tolist()}; the directory belongs to another search")
-                return (last.get("iteration", 0) >= leg_iterations
-                        or trainer_lib.reached(last, config.run.stop_difficulty)
-                        or (settings.minutes and minutes_left(last) <= 0))
+                return self._stopped(config, last, leg_iterations)
 
             def resume_overrides(config, last):  # this leg's end, the time budget left
-                limit = max(minutes_left(last), 1e-3) if settings.minutes else 0.0
+                limit = max(self._minutes_left(last), 1e-3) if settings.minutes else 0.0
                 return [f"run.iterations={leg_iterations}", f"run.time_limit_minutes={limit}"]
 
             train_commands.train_or_resume(settings.train, run_dir,
@@ -209,6 +206,33 @@ class JumpBlackBox:
                 echo(f"gave up: {why}")
                 return why
         return None
+
+    def trained(self, run_dir: Path) -> bool:
+        """Whether the training in `run_dir` has a checkpoint and stopped where its last leg
+        was to stop (`_stopped`): the iterations that leg asked for (all of `samples`, or a
+        give-up point's), the bar at z_freeze, or (when given) `minutes` spent, counted over
+        all its legs and resumes. A killed training has not."""
+        from agents.commands import train_commands
+        from agents.rl import trainer as trainer_lib
+        if not trainer_lib.has_checkpoint(run_dir):
+            return False
+        config = train_commands.load_run_config(run_dir)
+        records = trainer_lib.read_metrics(run_dir)
+        return self._stopped(config, records[-1] if records else {}, config.run.iterations)
+
+    def _stopped(self, config, last: dict, iterations: int) -> bool:
+        """Whether a training with the stored `config`, whose last metrics record is `last`,
+        stops there when trained to `iterations`: it has run them, its bar has reached its
+        stop difficulty (z_freeze), or its minutes are spent."""
+        from agents.rl import trainer as trainer_lib
+        return (last.get("iteration", 0) >= iterations
+                or trainer_lib.reached(last, config.run.stop_difficulty)
+                or bool(self.settings.minutes and self._minutes_left(last) <= 0))
+
+    def _minutes_left(self, last: dict) -> float:
+        """The training minutes `minutes` leaves after the metrics record `last` (whose
+        seconds count every leg and resume)."""
+        return self.settings.minutes - last.get("seconds", 0.0) / 60
 
     def _measure(self, directory: Path, index: int, x, why: str | None) -> dict:
         """Evaluate the trained policy (see the module docstring), keep its files, return its
