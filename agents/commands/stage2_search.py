@@ -233,12 +233,13 @@ def _stage1_policy(search_dir, search_config, index, data_dir, echo):
     """Make sure Stage-1 evaluation `index` has a finished policy before a round warm-starts
     from it. One whose training ended on its own (`JumpBlackBox.trained`) is used as it is,
     however it ended. One that is missing, or killed part way, is trained (again), or resumed,
-    by the search's own black box (see the module docstring), then measured as the search measures an
-    evaluation, into evaluations/NNN/retrained/ (result.json, episode, peak pose): a new
-    training from the same x may jump another way. Its result.json — what the search measured
-    and logged — is kept as it was, and the new measurement joins the policies the rounds are
-    novel against (`stage2.found_policies`); the command says how far the new policy's crossing
-    is from the logged one, and stops when the new policy does not clear the bar."""
+    by the search's own black box (see the module docstring), then measured as the search
+    measures an evaluation, into evaluations/NNN/retrained/ (result.json, episode, peak pose): a
+    new training from the same x may jump another way. Its result.json — what the search
+    measured and logged — is kept as it was, and the new measurement joins the policies the
+    rounds are novel against (`stage2.found_policies`); the command says how far the new
+    policy's crossing is from the logged one, and stops when the new policy does not clear the
+    bar."""
     from agents.commands import strategy_search
     directory = jump_black_box.evaluation_dir(search_dir, index)
     run_dir, again = directory / jump_black_box.TRAIN, directory / RETRAINED
