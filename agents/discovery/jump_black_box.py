@@ -211,7 +211,13 @@ class JumpBlackBox:
         """Whether the training in `run_dir` has a checkpoint and stopped where its last leg
         was to stop (`_stopped`): the iterations that leg asked for (all of `samples`, or a
         give-up point's), the bar at z_freeze, or (when given) `minutes` spent, counted over
-        all its legs and resumes. A killed training has not."""
+        all its legs and resumes. A killed training has not.
+
+        One gap, with `minutes`: a training hard-killed (SIGKILL) after logging iterations past
+        its checkpoint is resumed with the minutes left after its last logged iteration, not
+        after its checkpoint's, so its time runs out up to one checkpoint interval short of
+        `minutes`, and it does not count as trained here (Stage 2 then trains it on for those
+        minutes). The checkpoint's iteration is known only to whoever reads the checkpoint."""
         from agents.commands import train_commands
         from agents.rl import trainer as trainer_lib
         if not trainer_lib.has_checkpoint(run_dir):
