@@ -348,8 +348,7 @@ def train_member(config_path, overrides, run_dir, data_dir) -> dict:
 def last_metrics(run_dir) -> dict:
     """The numbers of a run's last metrics record."""
     from agents.rl import trainer as trainer_lib
-    records = trainer_lib.read_metrics(run_dir)
-    last = records[-1] if records else {}
+    last = trainer_lib.last_record(run_dir)
     return {k: v for k, v in last.items() if isinstance(v, (int, float))
             and not isinstance(v, bool)}
 

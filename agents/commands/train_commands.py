@@ -201,8 +201,7 @@ def train_or_resume(config_path, run_dir, overrides=(), data_dir=None, echo=prin
     if not trainer_lib.has_checkpoint(run_dir):
         return train(config_path, run_dir, overrides, data_dir=data_dir, echo=echo)
     config = load_run_config(run_dir)
-    records = trainer_lib.read_metrics(run_dir)
-    last = records[-1] if records else {}
+    last = trainer_lib.last_record(run_dir)
     done = (finished(config, last) if finished is not None
             else last.get("iteration", 0) >= config.run.iterations)
     if not done:

@@ -223,8 +223,7 @@ class JumpBlackBox:
         if not trainer_lib.has_checkpoint(run_dir):
             return False
         config = train_commands.load_run_config(run_dir)
-        records = trainer_lib.read_metrics(run_dir)
-        return self._stopped(config, records[-1] if records else {}, config.run.iterations)
+        return self._stopped(config, trainer_lib.last_record(run_dir), config.run.iterations)
 
     def _stopped(self, config, last: dict, iterations: int) -> bool:
         """Whether a training with the stored `config`, whose last metrics record is `last`,

@@ -562,6 +562,12 @@ def read_metrics(run_dir) -> list[dict]:
     return log.records
 
 
+def last_record(run_dir) -> dict:
+    """The log's last record, the one a resume judges the run by ({} when it has none)."""
+    records = read_metrics(run_dir)
+    return records[-1] if records else {}
+
+
 def _check_iterations(log: runlog.Log):
     """A LogError naming the record unless every record has the whole numbers `iteration` and
     `samples` and the number `seconds`, none below 0 (what resuming and plotting read)."""
