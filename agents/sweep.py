@@ -14,11 +14,12 @@ Two kinds, by what the table's `evaluate` says:
 - **A training sweep** (a training config with a `[sweep]` table): each member is a training
   run in `DIR/members/NNN` from the config with the member's values. When every swept key is
   `run.seed`, a task parameter or a PPO hyperparameter (`ppo.policy_lr`, `value_lr`, `clip`,
-  `sigma_start`, `sigma_end`, `sigma_horizon`) and `vmap` is not false, all the members train
-  in one compiled program (`agents.rl.members`), checkpointed together in `DIR/members/`; else
-  each is its own run through the executor (`workers` local processes, each pinned to its
-  cores). A killed sweep resumes: members with a row are not run again, and a training goes on
-  from its last checkpoint (`train_commands.train_or_resume`; the group's own checkpoint).
+  `sigma_start`, `sigma_end`, `sigma_horizon`), `vmap` is not false and `run.devices` is 1,
+  all the members train in one compiled program (`agents.rl.members`), checkpointed together
+  in `DIR/members/`; else each is its own run through the executor (`workers` local
+  processes, each pinned to its cores), and the sweep says why. A killed sweep resumes:
+  members with a row are not run again, and a training goes on from its last checkpoint
+  (`train_commands.train_or_resume`; the group's own checkpoint).
 
 A sweep directory holds `sweep.json` (the members; a rerun must describe the same sweep),
 `base.json` (a training sweep's config without its table), `sweep.jsonl` (a row per finished
@@ -251,13 +252,23 @@ def _evaluate(sweep: Sweep, out: Path, data_dir, echo):
                                        {k: v[index] for k, v in means.items()}))
 
 
-def _in_one_program(sweep: Sweep) -> bool:
-    """Whether the training sweep's members can train in one program: every swept key the seed
-    or a task parameter, on one device."""
+def why_not_one_program(sweep: Sweep) -> str | None:
+    """Why the training sweep's members cannot train in one program, or None when they can:
+    `vmap` not false, on one device, every swept key the seed, a task parameter or a PPO
+    hyperparameter."""
     from agents.commands import train_commands
     config = train_commands.build_config(_with_physics(sweep), sweep.source)
     allowed = {"run.seed", *vmappable_keys(config), *_hyperparameter_keys()}
-    return sweep.vmap and config.run.devices == 1 and all(k in allowed for k in sweep.keys)
+    others = [k for k in sweep.keys if k not in allowed]
+    if not sweep.vmap:
+        return "the sweep says vmap = false"
+    if config.run.devices != 1:
+        return (f"run.devices is {config.run.devices}, and members share one program on one "
+                f"device only (--set run.devices=1 for that)")
+    if others:
+        return (f"{', '.join(others)} cannot differ between the members of one program (the "
+                f"seed, task parameters and {', '.join(_hyperparameter_keys())} can)")
+    return None
 
 
 def _hyperparameter_keys():
@@ -317,8 +328,10 @@ def _train(sweep: Sweep, out: Path, todo, data_dir, echo):
     `workers` at once through the executor."""
     from jaxsim import executor as executor_lib
 
-    if _in_one_program(sweep):
+    why_not = why_not_one_program(sweep)
+    if why_not is None:
         return _train_together(sweep, out, todo, data_dir, echo)
+    echo(f"training each member as its own run: {why_not}")
 
     jobs = [(str(out / BASE), sweep_spec.overrides(sweep.members[i]),
              str(out / MEMBERS / f"{i:03d}"), None if data_dir is None else str(data_dir))

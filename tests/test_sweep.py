@@ -231,3 +231,25 @@ def test_seeds_trained_in_one_program_equal_the_trainings_run_alone(tmp_path):
     summary = train_commands.evaluate(out / sweep.MEMBERS / "001", episodes=2,
                                       echo=lambda *_: None)[0]
     assert np.isfinite(summary["return"])
+
+
+@pytest.mark.parametrize("table, overrides, why_not", [
+    ("run.seed = [0, 1]\n", (), "run.devices is 0, and members share one program on one device"),
+    ("run.seed = [0, 1]\n", ("run.devices=1",), None),
+    ('"ppo.clip" = [0.1, 0.2]\n"highjump.gravity" = [[0, -9.8, 0], [0, -3.7, 0]]\n',
+     ("run.devices=1",), None),
+    ('"ppo.hidden" = [[8], [16]]\n', ("run.devices=1",),
+     "ppo.hidden cannot differ between the members of one program"),
+    ("run.seed = [0, 1]\nvmap = false\n", ("run.devices=1",), "vmap = false"),
+])
+def test_a_training_sweep_says_why_its_members_are_not_one_program(tmp_path, table, overrides,
+                                                                   why_not):
+    """The jump configs train on every core (`devices = 0`): a seed sweep of one trains its
+    members one run each, and says so, until it asks for one device."""
+    config = tmp_path / "highjump_sweep.toml"
+    config.write_text(open("configs/highjump.toml").read() + "\n[sweep]\n" + table)
+    reason = sweep.why_not_one_program(sweep.load(config, overrides))
+    if why_not is None:
+        assert reason is None
+    else:
+        assert why_not in reason
