@@ -3,6 +3,8 @@ run directory and the command line."""
 
 import dataclasses
 import json
+import os
+import signal
 
 import jax
 import jax.numpy as jnp
@@ -156,18 +158,52 @@ def test_run_directory_metrics_and_curve(tmp_path):
 
 
 def test_ctrl_c_saves_a_checkpoint_that_resumes(tmp_path):
-    calls = []
+    progress = []
 
-    def interrupt_on_second(line):
-        calls.append(line)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
+    def interrupt_at_the_second_progress_line(line):
+        if line.startswith("iter"):     # (lines before: the run, and a compile if not cached)
+            progress.append(line)
+            if len(progress) == 2:
+                raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        small_run(tmp_path, 5, extra=["run.checkpoint_every=100"], echo=interrupt_on_second)
-    trainer, state = train_commands.train(resume=tmp_path / "run", echo=lambda *_: None)
+        small_run(tmp_path, 5, extra=["run.checkpoint_every=100", "run.progress_every=1"],
+                  echo=interrupt_at_the_second_progress_line)
+    resumed = []
+    trainer, state = train_commands.train(resume=tmp_path / "run", echo=resumed.append)
+    assert resumed[0] == f"resuming {tmp_path / 'run'} at iteration 2"
     assert int(state.ppo.iteration) == 5
     assert [r["iteration"] for r in trainer_lib.read_metrics(tmp_path / "run")] == [1, 2, 3, 4, 5]
+
+
+def test_sigterm_stops_after_its_iteration_with_a_checkpoint_that_resumes(tmp_path):
+    """A SIGTERM (a batch system's preemption, `kill`) to a one-process run is noted, not fatal:
+    the run ends the iteration it arrived in, checkpoints it, and stops as a Ctrl-C does; the
+    handler is put back afterwards."""
+    before = signal.getsignal(signal.SIGTERM)
+    lines, sent_after = [], []
+
+    def terminate_after_the_first_progress_line(line):
+        lines.append(line)
+        if line.startswith("iter") and not sent_after:
+            sent_after.append(int(line.split()[1].split("/")[0]))
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(KeyboardInterrupt):
+        small_run(tmp_path, 8, extra=["run.checkpoint_every=100", "run.progress_every=1"],
+                  echo=terminate_after_the_first_progress_line)
+    assert signal.getsignal(signal.SIGTERM) is before
+    logged = [r["iteration"] for r in trainer_lib.read_metrics(tmp_path / "run")]
+    # It stops after the iteration the signal arrived in (the one after the line's).
+    assert logged == list(range(1, sent_after[0] + 2))
+    assert lines[-1] == (f"\ninterrupted: checkpoint at iteration {logged[-1]} in "
+                         f"{tmp_path / 'run'}")
+    resumed = []
+    trainer, state = train_commands.train(resume=tmp_path / "run", echo=resumed.append)
+    assert resumed[0] == f"resuming {tmp_path / 'run'} at iteration {logged[-1]}"
+    assert int(state.ppo.iteration) == 8
+    assert [r["iteration"] for r in trainer_lib.read_metrics(tmp_path / "run")] == list(
+        range(1, 9))
 
 
 def test_eval_reports_and_renders(tmp_path, capsys):

@@ -75,6 +75,8 @@ def _cmd_search(args):
                             data_dir=args.data_dir)
     except (ConfigError, SearchError, OutputError, LogError, ExecutorError) as error:
         raise SystemExit(f"takeoff search: {error}")
+    except KeyboardInterrupt:
+        raise SystemExit(130)
 
 
 def _cmd_pvae_dataset(args):

@@ -228,40 +228,47 @@ def process_label() -> str:
 
 
 class Stop:
-    """What ends a multi-process run between iterations, decided by all its processes
-    together (`agreed`): a Ctrl-C (SIGINT) that reached any of them (between `listen` and
-    `close` a handler only notes it), a SIGTERM (JAX's preemption service, which
+    """What ends a run between iterations. In a multi-process run it is decided by all the
+    processes together (`agreed`): a Ctrl-C (SIGINT) that reached any of them (between `listen`
+    and `close` a handler only notes it), a SIGTERM (JAX's preemption service, which
     `jax.distributed` starts, notes it and names the iteration all stop after), or a time
-    limit that any of them reached. In one process it changes nothing: Ctrl-C raises
-    KeyboardInterrupt where it lands, SIGTERM ends the process, and `agreed` asks no one."""
+    limit that any of them reached. In one process a Ctrl-C raises KeyboardInterrupt where it
+    lands, and a SIGTERM (a batch system's preemption, `kill`) is noted and stops the run after
+    the iteration it arrived in, as a Ctrl-C does; a second SIGTERM ends the process at once."""
 
     def __init__(self):
         self.many = jax.process_count() > 1
         self.interrupted = False
-        self._previous = None
+        self._previous = {}                # {signal: the handler `listen` replaced}
 
     def listen(self) -> "Stop":
-        """Note SIGINT instead of raising (in a multi-process run), until `close`."""
-        if self.many:
-            try:
-                self._previous = signal.signal(signal.SIGINT, self._note)
-            except ValueError:             # not the main thread: signals are not ours
-                self._previous = None
+        """Until `close`: note SIGINT (in a multi-process run) or SIGTERM (in one process)
+        instead of acting on it where it lands."""
+        noted = signal.SIGINT if self.many else signal.SIGTERM
+        if signal.getsignal(noted) is None:    # a handler not set from Python: left alone
+            return self
+        try:
+            self._previous[noted] = signal.signal(noted, self._note)
+        except ValueError:                 # not the main thread: signals are not ours
+            pass
         return self
 
     def close(self):
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
-            self._previous = None
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous = {}
 
     def _note(self, signum, frame):
         self.interrupted = True
+        if signum == signal.SIGTERM:       # a second one is not waited on
+            signal.signal(signum, self._previous.pop(signum, signal.SIG_DFL))
 
     def agreed(self, iteration: int, time_up: bool) -> tuple[bool, bool]:
         """After `iteration`: (whether the run stops as interrupted, by a Ctrl-C or SIGTERM
-        that reached any process; whether any process reached the time limit)."""
+        that reached any process, or a SIGTERM noted in one; whether any process reached the
+        time limit)."""
         if not self.many:
-            return False, bool(time_up)
+            return self.interrupted, bool(time_up)
         from jax.experimental import multihost_utils
         flags = multihost_utils.process_allgather(
             np.array([self.interrupted, bool(time_up)], np.int32))

@@ -446,11 +446,11 @@ def _json_value(value):
 
 def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
     """Train until `iterations` are done (or the time limit passes, or the curriculum reaches
-    `stop_difficulty`), logging, showing progress and checkpointing in run_dir; Ctrl-C
-    checkpoints and stops. In a multi-process run every process runs this loop and only
-    process 0 logs, shows progress and writes checkpoints; the processes agree, between
-    iterations, on a Ctrl-C, a SIGTERM or the time limit (`parallel.Stop`), so they stop
-    together."""
+    `stop_difficulty`), logging, showing progress and checkpointing in run_dir; a Ctrl-C or a
+    SIGTERM checkpoints the last logged iteration and raises KeyboardInterrupt (`parallel.Stop`).
+    In a multi-process run every process runs this loop and only process 0 logs, shows progress
+    and writes checkpoints; the processes agree, between iterations, on a Ctrl-C, a SIGTERM or
+    the time limit, so they stop together."""
     run_dir = Path(run_dir)
     settings = trainer.run_settings
     writer = parallel.is_writer()
@@ -517,9 +517,9 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
                      f"{record['seconds'] / 60:.1f} min")
                 break
     except KeyboardInterrupt:
-        echo(f"\ninterrupted: checkpoint at iteration {completed_iterations(state)} in {run_dir}")
         if completed_iterations(state) != saved:
             _save(trainer, state, run_dir, writer)
+        echo(f"\ninterrupted: checkpoint at iteration {completed_iterations(state)} in {run_dir}")
         raise
     finally:
         stop.close()
