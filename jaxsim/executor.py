@@ -22,7 +22,8 @@ once, and yields (job index, result) as each job finishes. The backends:
 One rule for failures, on every backend:
 
 - A job whose worker process dies (killed by a signal, out of memory) is run again on a fresh
-  worker, at most `max_retries` times; after that an `ExecutorError` names the job and how its
+  worker, at most `max_retries` times (a SIGTERM counts as such a death even when the job
+  noted it and stopped cleanly, as a training does after checkpointing: `_job`); after that an `ExecutorError` names the job and how its
   worker died. No finished result is lost: each is yielded as it comes in.
 - A job that raises is not run again: its exception is raised to the caller as itself (type and
   message kept, so callers catch it as they would from fn), with a note naming the job and,
@@ -38,6 +39,7 @@ started).
 """
 
 import collections
+import ctypes
 import importlib.util
 import multiprocessing
 import multiprocessing.connection
@@ -50,6 +52,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator
 
 BACKENDS = ("local", "ray")
+PR_SET_PDEATHSIG = 1       # prctl's option: the signal a process gets when its parent ends
 RAY_MISSING = ("the ray backend needs Ray, which is not installed here: "
                "pip install 'takeoff[ray]'")
 
@@ -192,14 +195,39 @@ class InProcess(Executor):
 # local worker processes
 
 
+def end_with_parent(signum):
+    """Ask the kernel to send this process `signum` when its parent ends (PR_SET_PDEATHSIG; on
+    Linux only, elsewhere nothing)."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signum)
+    except (OSError, AttributeError):
+        pass
+
+
+def _job(fn, args):
+    """fn(*args) in a worker process. A KeyboardInterrupt there is a SIGTERM the job noted and
+    stopped at (a training checkpoints first: `agents.rl.trainer.run`), so the worker then ends
+    by that signal, and the rule for a worker killed by a signal applies: the job runs again,
+    from that checkpoint."""
+    try:
+        return fn(*args)
+    except KeyboardInterrupt:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise                                   # (a SIGTERM blocked in this thread)
+
+
 def _serve(connection, cores, environment):
     """A worker process: pin itself and size its thread pools, then run the jobs that arrive
     on `connection` (pickled (fn, args)) one at a time, sending back ("result", value) or
     ("error", exception, traceback text, pid), until the connection closes. Ctrl-C is the
-    parent's to handle: the worker ignores it and is stopped by the parent."""
+    parent's to handle: the worker ignores it and is stopped by the parent. A SIGTERM ends the
+    worker (`_job`), and one comes when the parent ends without stopping it (killed), so a
+    training job checkpoints and ends rather than run on unseen."""
     os.environ.update(environment)
     os.sched_setaffinity(0, cores)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    end_with_parent(signal.SIGTERM)
     while True:
         try:
             payload = connection.recv_bytes()
@@ -207,7 +235,7 @@ def _serve(connection, cores, environment):
             return
         try:
             fn, args = pickle.loads(payload)
-            reply = pickle.dumps(("result", fn(*args)))
+            reply = pickle.dumps(("result", _job(fn, args)))
         except BaseException as error:
             reply = pickle.dumps(("error", _sendable(error), traceback.format_exc(), os.getpid()))
         connection.send_bytes(reply)
@@ -344,7 +372,7 @@ class LocalProcesses(Executor):
 
 def _call(fn, args):
     """A Ray task: one job."""
-    return fn(*args)
+    return _job(fn, args)
 
 
 class RayExecutor(Executor):

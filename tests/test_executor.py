@@ -7,6 +7,8 @@ import os
 import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -21,14 +23,17 @@ def where_am_i(index):
     return index, sorted(os.sched_getaffinity(0)), os.environ.get("PJRT_NPROC"), os.getpid()
 
 
-def dies_once(folder, index):
-    """index × 10, after noting the run in folder/runs; job 1 kills its own process the first
-    time it runs (folder/killed marks that it did)."""
+def dies_once(folder, index, how="SIGKILL"):
+    """index × 10, after noting the run in folder/runs; job 1, the first time it runs
+    (folder/killed marks that it did), kills its own process (SIGKILL) or stops as a training
+    does after a SIGTERM it noted (KeyboardInterrupt, "SIGTERM")."""
     with open(folder / "runs", "a") as runs:
         runs.write(f"{index}\n")
     marker = folder / "killed"
     if index == 1 and not marker.exists():
         marker.touch()
+        if how == "SIGTERM":
+            raise KeyboardInterrupt
         os.kill(os.getpid(), signal.SIGKILL)
     return index * 10
 
@@ -43,12 +48,13 @@ def rejects_two(index):
     return index
 
 
-def check_four_jobs_and_a_kill(executor, tmp_path):
-    """4 jobs, one of whose worker is killed the first time it runs: every result comes back,
-    and only the killed job ran twice."""
-    results = dict(executor.map_unordered(dies_once, [(tmp_path, i) for i in range(4)]))
+def check_four_jobs_and_a_kill(executor, folder, how="SIGKILL"):
+    """4 jobs, one of whose worker is killed (`dies_once`) the first time it runs: every result
+    comes back, and only the killed job ran twice."""
+    folder.mkdir(exist_ok=True)
+    results = dict(executor.map_unordered(dies_once, [(folder, i, how) for i in range(4)]))
     assert results == {0: 0, 1: 10, 2: 20, 3: 30}
-    runs = sorted(int(line) for line in (tmp_path / "runs").read_text().split())
+    runs = sorted(int(line) for line in (folder / "runs").read_text().split())
     assert runs == [0, 1, 1, 2, 3]
 
 
@@ -80,9 +86,46 @@ def test_four_jobs_on_two_local_workers_each_pinned_to_its_cores():
     assert executor.cores[0] == tuple(cores[:max(1, len(cores) // 2)])
 
 
-def test_a_killed_local_worker_loses_no_result_and_its_job_runs_again(tmp_path):
+@pytest.mark.parametrize("how", ["SIGKILL", "SIGTERM"])
+def test_a_killed_local_worker_loses_no_result_and_its_job_runs_again(tmp_path, how):
     with LocalProcesses(2) as executor:
-        check_four_jobs_and_a_kill(executor, tmp_path)
+        check_four_jobs_and_a_kill(executor, tmp_path, how)
+
+
+def waits_for_sigterm(folder):
+    """Notes a SIGTERM in folder/terminated and ends; until then waits (a minute at most)."""
+    def note(signum, frame):
+        (folder / "terminated").touch()
+        os._exit(0)
+    signal.signal(signal.SIGTERM, note)
+    (folder / "ready").touch()
+    signal.sigtimedwait([], 60)
+
+
+def test_a_local_worker_gets_a_sigterm_when_its_parent_is_killed(tmp_path):
+    """So a training job checkpoints and ends (`_job`) rather than run on, unseen."""
+    parent = subprocess.Popen([sys.executable, "-c", (
+        "import sys; from pathlib import Path; sys.path.insert(0, 'tests')\n"
+        "from jaxsim.executor import LocalProcesses\n"
+        "from test_executor import waits_for_sigterm\n"
+        "with LocalProcesses(1) as executor:\n"
+        f"    list(executor.map_unordered(waits_for_sigterm, [(Path({str(tmp_path)!r}),)]))\n")],
+        cwd=Path(__file__).resolve().parents[1])
+    try:
+        wait_for(tmp_path / "ready", parent)
+        parent.kill()
+        parent.wait()
+        wait_for(tmp_path / "terminated")
+    finally:
+        parent.kill()
+
+
+def wait_for(path, process=None, seconds=60):
+    deadline = time.monotonic() + seconds
+    while not path.exists():
+        assert process is None or process.poll() is None, "the parent ended by itself"
+        assert time.monotonic() < deadline, f"no {path.name} after {seconds} s"
+        time.sleep(0.05)
 
 
 def test_a_raising_job_is_raised_as_itself_naming_the_job():
@@ -142,7 +185,8 @@ def test_four_jobs_and_a_killed_worker_on_a_local_ray_instance(ray_instance, tmp
         results = dict(executor.map_unordered(where_am_i, [(i,) for i in range(4)]))
         assert sorted(results) == [0, 1, 2, 3]
         assert {threads for _, _, threads, _ in results.values()} == {"1"}
-        check_four_jobs_and_a_kill(executor, tmp_path)
+        check_four_jobs_and_a_kill(executor, tmp_path / "killed")
+        check_four_jobs_and_a_kill(executor, tmp_path / "stopped", "SIGTERM")
         check_a_raising_job(executor)
     assert ray_instance.is_initialized()        # the executor did not start it, nor stops it
 

@@ -178,8 +178,8 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(tmp_path):
 
 def test_sigterm_stops_after_its_iteration_with_a_checkpoint_that_resumes(tmp_path):
     """A SIGTERM (a batch system's preemption, `kill`) to a one-process run is noted, not fatal:
-    the run ends the iteration it arrived in, checkpoints it, and stops as a Ctrl-C does; the
-    handler is put back afterwards."""
+    the run ends the iteration it arrived in, checkpoints it, and stops as a Ctrl-C does, even
+    when it arrives with the last iteration; the handler is put back afterwards."""
     before = signal.getsignal(signal.SIGTERM)
     lines, sent_after = [], []
 
@@ -198,10 +198,21 @@ def test_sigterm_stops_after_its_iteration_with_a_checkpoint_that_resumes(tmp_pa
     assert logged == list(range(1, sent_after[0] + 2))
     assert lines[-1] == (f"\ninterrupted: checkpoint at iteration {logged[-1]} in "
                          f"{tmp_path / 'run'}")
+    # Resumed where it stopped, and sent a SIGTERM with its last iteration's line: the run
+    # was ending anyway, but one that returned would let its caller (a search's next
+    # evaluation, Stage 2's next round) start another training.
     resumed = []
-    trainer, state = train_commands.train(resume=tmp_path / "run", echo=resumed.append)
+
+    def terminate_at_the_last_line(line):
+        resumed.append(line)
+        if line.startswith("iter     8/8"):
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(KeyboardInterrupt):
+        train_commands.train(resume=tmp_path / "run", echo=terminate_at_the_last_line)
     assert resumed[0] == f"resuming {tmp_path / 'run'} at iteration {logged[-1]}"
-    assert int(state.ppo.iteration) == 8
+    assert resumed[-1].startswith("\ninterrupted: checkpoint at iteration 8")
+    assert signal.getsignal(signal.SIGTERM) is before
     assert [r["iteration"] for r in trainer_lib.read_metrics(tmp_path / "run")] == list(
         range(1, 9))
 

@@ -23,7 +23,6 @@ first's number unless a child had failed.
 This module imports no JAX: the launcher starts no backend of its own.
 """
 
-import ctypes
 import os
 import signal
 import socket
@@ -32,7 +31,8 @@ import sys
 import tempfile
 import time
 
-PR_SET_PDEATHSIG = 1
+from jaxsim.executor import end_with_parent
+
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 GRACE_SECONDS = 10.0       # how long the others may take to fail by themselves when one fails
 # A process pinned to a single core waits ~8× longer for each collective operation (3.8 ms
@@ -70,10 +70,7 @@ def core_shares(processes: int, minimum: int = MIN_CORES_PINNED) -> list:
 
 def _child_setup(cores):
     """In the child, before it runs: die with the launcher; run on its own cores."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):
-        pass
+    end_with_parent(signal.SIGKILL)
     if cores:
         os.sched_setaffinity(0, cores)
 

@@ -234,7 +234,8 @@ class Stop:
     `jax.distributed` starts, notes it and names the iteration all stop after), or a time
     limit that any of them reached. In one process a Ctrl-C raises KeyboardInterrupt where it
     lands, and a SIGTERM (a batch system's preemption, `kill`) is noted and stops the run after
-    the iteration it arrived in, as a Ctrl-C does; a second SIGTERM ends the process at once."""
+    the iteration it arrived in, as a Ctrl-C does; a second SIGTERM goes to the handler there
+    was before (by default it ends the process at once)."""
 
     def __init__(self):
         self.many = jax.process_count() > 1
@@ -245,8 +246,6 @@ class Stop:
         """Until `close`: note SIGINT (in a multi-process run) or SIGTERM (in one process)
         instead of acting on it where it lands."""
         noted = signal.SIGINT if self.many else signal.SIGTERM
-        if signal.getsignal(noted) is None:    # a handler not set from Python: left alone
-            return self
         try:
             self._previous[noted] = signal.signal(noted, self._note)
         except ValueError:                 # not the main thread: signals are not ours
@@ -257,6 +256,11 @@ class Stop:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
         self._previous = {}
+
+    def noted_alone(self) -> bool:
+        """Whether this process, alone in its run, noted a SIGTERM (after the run's last
+        `agreed`, too: the caller's next run must not start)."""
+        return self.interrupted and not self.many
 
     def _note(self, signum, frame):
         self.interrupted = True

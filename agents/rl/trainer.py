@@ -516,6 +516,8 @@ def run(trainer: Trainer, state: TrainState, run_dir, echo=print) -> TrainState:
                 echo(f"difficulty {record[DIFFICULTY]:g} reached at "
                      f"{record['seconds'] / 60:.1f} min")
                 break
+        if stop.noted_alone():          # a SIGTERM that came with the last iteration's end
+            raise KeyboardInterrupt
     except KeyboardInterrupt:
         if completed_iterations(state) != saved:
             _save(trainer, state, run_dir, writer)
