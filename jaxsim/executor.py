@@ -23,8 +23,9 @@ One rule for failures, on every backend:
 
 - A job whose worker process dies (killed by a signal, out of memory) is run again on a fresh
   worker, at most `max_retries` times (a SIGTERM counts as such a death even when the job
-  noted it and stopped cleanly, as a training does after checkpointing: `_job`); after that an `ExecutorError` names the job and how its
-  worker died. No finished result is lost: each is yielded as it comes in.
+  noted it and stopped cleanly, as a training does after checkpointing: `_job`); after that
+  an `ExecutorError` names the job and how its worker died. No finished result is lost: each
+  is yielded as it comes in.
 - A job that raises is not run again: its exception is raised to the caller as itself (type and
   message kept, so callers catch it as they would from fn), with a note naming the job and,
   from a worker, the worker's traceback. Once a job has failed no further job starts; the jobs
