@@ -271,3 +271,11 @@ def test_the_feature_is_the_mean_over_the_clearing_episodes_and_needs_a_majority
     assert feature["peak_com"] == pytest.approx(outcomes["episode/peak_com"][picked].mean())
     outcomes["episode/success"] = np.array([1.0, 0.0, 1.0, 0.0, 0.0])        # 2 of 5
     assert jump_black_box.crossing_feature(outcomes) is None
+
+
+def test_a_prefixed_echo_puts_every_line_behind_its_prefix_and_no_empty_first_line(capsys):
+    echo = jump_black_box.prefixed_echo("[g 007] ")
+    echo("\ninterrupted: checkpoint at iteration 3\nsecond line")
+    echo()
+    assert capsys.readouterr().out.splitlines() == [
+        "[g 007] interrupted: checkpoint at iteration 3", "[g 007] second line", "[g 007] "]

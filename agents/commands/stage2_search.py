@@ -287,7 +287,7 @@ def _run_round(search_dir, out, entry, plan, search_config, data_dir, echo):
     run_dir = directory / jump_black_box.TRAIN
     echo(f"[stage2 {index:03d}] round {entry['round'] + 1}/{plan['rounds']} from evaluation "
          f"{entry['evaluation']} (Stage-1 strategy {entry['strategy']})")
-    say = jump_black_box._prefixed(f"  [stage2 {index:03d}] ")
+    say = jump_black_box.prefixed_echo(f"  [stage2 {index:03d}] ")
     config_path = directory / RUN_CONFIG
     if not config_path.exists():
         _stage1_policy(search_dir, search_config, entry["evaluation"], data_dir, echo)

@@ -182,7 +182,7 @@ class JumpBlackBox:
         base = train_commands.load_config(settings.train, settings.set)
         points = self.give_up_points(base.run.samples_per_iteration)
         legs = [*points, (_iterations(settings.samples, base.run.samples_per_iteration), None)]
-        echo = _prefixed(f"  [g {run_dir.parent.name}] ")
+        echo = prefixed_echo(f"  [g {run_dir.parent.name}] ")
         for leg_iterations, judge in legs:
             def finished(config, last):
                 if not same_x(config.sections()[config.run.task]["takeoff"], x):
@@ -376,5 +376,11 @@ def read_episode(directory, dtype):
         return np.asarray(data["poses"]), float(data["control_dt"]), task
 
 
-def _prefixed(prefix):
-    return lambda text="": print("\n".join(prefix + line for line in str(text).split("\n")))
+def prefixed_echo(prefix):
+    """An echo that prints each line of its text behind `prefix`, so that the lines of jobs
+    sharing one log say whose they are. A message's leading newlines (the trainer starts its
+    "interrupted" line with one, to leave a terminal's ^C behind) are dropped, not printed as
+    empty prefixed lines."""
+    def echo(text=""):
+        print("\n".join(prefix + line for line in str(text).lstrip("\n").split("\n")))
+    return echo
